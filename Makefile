@@ -1,0 +1,40 @@
+# skyloc: `make demo` runs the pipeline end to end; `make test` installs and runs the tests.
+VENV := .venv
+PY := $(VENV)/bin/python
+export BLENDER_USER_RESOURCES ?= $(CURDIR)/.cache/blender
+export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
+export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
+
+.PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean
+
+install:
+	bash scripts/install.sh
+
+test: install
+	$(PY) -m pytest -q
+
+test-fast: install
+	$(PY) -m pytest -q -m "not slow and not blender and not service and not grass"
+
+demo: install
+	$(PY) -m skyloc.demo
+
+bench: bench-db bench-match bench-extract bench-blender bench-service
+
+bench-db: install
+	$(PY) -m benchmarks.bench_db_render
+
+bench-match: install
+	$(PY) -m benchmarks.bench_match
+
+bench-extract: install
+	$(PY) -m benchmarks.bench_extract
+
+bench-blender: install
+	$(PY) -m benchmarks.bench_blender
+
+bench-service: install
+	$(PY) -m benchmarks.bench_service
+
+clean:
+	rm -rf .cache build *.egg-info demo_out

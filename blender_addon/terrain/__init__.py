@@ -1,0 +1,1 @@
+"""bpy-free terrain: DEM import (GDAL), procedural terrain, multi-resolution levels."""

@@ -1,0 +1,427 @@
+"""The skyline database: one Zarr v3 store per search grid.
+
+Layout (format ``skyloc-skydb``, version 1)::
+
+    db.zarr/
+      zarr.json                 group; attrs hold the metadata below
+      elevation/                int16 (ny, nx, n_az), 0.01 degree units, chunks (tile, tile, n_az)
+      distance/    (optional)   uint16 (ny, nx, n_az), horizon distance in 10 m units
+      tile_done/                uint8 (n_tiles_y, n_tiles_x), chunks (1, 1): 1 once a tile is written
+
+Row ``i`` / column ``j`` of the grid is the position
+``x = gt[0] + (j + 0.5) * gt[1]``, ``y = gt[3] + (i + 0.5) * gt[5]`` (GDAL pixel centres,
+row 0 north).  Skyline sample ``k`` is the elevation at azimuth ``start + k * step``
+(degrees clockwise from grid north), see :mod:`board.conventions`.
+
+A tile is written whole, then marked done; a writer reopening an existing store resumes and
+never rewrites a finished tile.  Readers refuse unknown versions and corrupt stores.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from board.errors import FormatError, InvalidInputError
+
+log = logging.getLogger(__name__)
+
+FORMAT_NAME = "skyloc-skydb"
+FORMAT_VERSION = 1
+SUPPORTED_VERSIONS = (1,)
+ELEVATION_SCALE_DEG = 0.01          # one int16 unit, degrees
+MISSING = np.int16(-32768)          # sentinel: not rendered / not seen
+DISTANCE_SCALE_M = 10.0             # one uint16 unit of the distance array, metres
+DISTANCE_MISSING = np.uint16(65535)
+DEFAULT_TILE = 64
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A regular grid of camera positions in the DEM's projected CRS (metres).
+
+    ``geotransform`` follows GDAL; positions are pixel centres, row 0 is the northern row.
+    """
+
+    geotransform: tuple[float, float, float, float, float, float]
+    nx: int
+    ny: int
+    crs_wkt: str = ""
+
+    @classmethod
+    def from_center(cls, center_xy: tuple[float, float], size_m: float, step_m: float, crs_wkt: str = "") -> "GridSpec":
+        """Square grid of ``size_m / step_m + 1`` positions a side centred on ``center_xy``.
+
+        A 1000 m grid at 5 m has 201 x 201 = 40,401 positions, both edges included.
+        """
+        if not (step_m > 0 and math.isfinite(step_m)):
+            raise InvalidInputError(f"grid step must be a positive number of metres, got {step_m}")
+        if not (size_m >= 0 and math.isfinite(size_m)):
+            raise InvalidInputError(f"grid size must be a non-negative number of metres, got {size_m}")
+        n = int(round(size_m / step_m)) + 1
+        half = (n - 1) * step_m / 2.0
+        cx, cy = float(center_xy[0]), float(center_xy[1])
+        gt = (cx - half - step_m / 2.0, step_m, 0.0, cy + half + step_m / 2.0, 0.0, -step_m)
+        return cls(gt, n, n, crs_wkt)
+
+    @property
+    def n_positions(self) -> int:
+        return self.nx * self.ny
+
+    def xy(self, i, j):
+        """Projected coordinates (metres) of row ``i``, column ``j`` (scalars or arrays)."""
+        gt = self.geotransform
+        x = gt[0] + (np.asarray(j) + 0.5) * gt[1] + (np.asarray(i) + 0.5) * gt[2]
+        y = gt[3] + (np.asarray(j) + 0.5) * gt[4] + (np.asarray(i) + 0.5) * gt[5]
+        return x, y
+
+    def ij(self, x: float, y: float) -> tuple[float, float]:
+        """Fractional (row, column) of point (x, y); inverse of :meth:`xy` for north-up grids."""
+        gt = self.geotransform
+        return (y - gt[3]) / gt[5] - 0.5, (x - gt[0]) / gt[1] - 0.5
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the position centres, metres."""
+        x0, y0 = self.xy(0, 0)
+        x1, y1 = self.xy(self.ny - 1, self.nx - 1)
+        return float(min(x0, x1)), float(min(y0, y1)), float(max(x0, x1)), float(max(y0, y1))
+
+
+@dataclass(frozen=True)
+class Tile:
+    """A block of grid positions: rows ``row0:row0+nrows``, columns ``col0:col0+ncols``."""
+
+    ti: int
+    tj: int
+    row0: int
+    col0: int
+    nrows: int
+    ncols: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.ti}_{self.tj}"
+
+
+def plan_tiles(grid: GridSpec, tile: int) -> list[Tile]:
+    """Tiles of ``tile x tile`` positions covering the grid (edge tiles smaller), row-major."""
+    out = []
+    for ti, r0 in enumerate(range(0, grid.ny, tile)):
+        for tj, c0 in enumerate(range(0, grid.nx, tile)):
+            out.append(Tile(ti, tj, r0, c0, min(tile, grid.ny - r0), min(tile, grid.nx - c0)))
+    return out
+
+
+@dataclass
+class SkyDBMeta:
+    """Metadata of a skyline database (the store's group attributes)."""
+
+    grid: GridSpec
+    camera_height_m: float
+    n_azimuth: int = 360
+    azimuth_start_deg: float = 0.0
+    body: str = "custom"
+    body_radius_m: float = 3_389_500.0
+    refraction_k: float = 0.0
+    renderer: str = "raymarch"
+    renderer_version: str = "0"
+    dem_sha256: str = ""
+    tile_size: int = DEFAULT_TILE
+    has_distance: bool = False
+    created_utc: str = field(default_factory=lambda: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def azimuth_step_deg(self) -> float:
+        return 360.0 / self.n_azimuth
+
+    def azimuths_deg(self) -> np.ndarray:
+        return self.azimuth_start_deg + np.arange(self.n_azimuth) * self.azimuth_step_deg
+
+    def to_attrs(self) -> dict:
+        d = asdict(self)
+        g = d.pop("grid")
+        return {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "crs_wkt": g["crs_wkt"],
+            "geotransform": list(g["geotransform"]),
+            "nx": g["nx"],
+            "ny": g["ny"],
+            "azimuth_step_deg": self.azimuth_step_deg,
+            "elevation_scale_deg": ELEVATION_SCALE_DEG,
+            "missing": int(MISSING),
+            **d,
+        }
+
+    @classmethod
+    def from_attrs(cls, attrs: dict, where: str = "store") -> "SkyDBMeta":
+        fmt = attrs.get("format")
+        if fmt != FORMAT_NAME:
+            raise FormatError(f"{where} is not a skyloc skyline database (format={fmt!r}); "
+                              "render one with `skyloc db render`")
+        version = attrs.get("version")
+        if version not in SUPPORTED_VERSIONS:
+            raise FormatError(f"{where} has skyline-database version {version!r}; this skyloc reads "
+                              f"versions {SUPPORTED_VERSIONS}: upgrade skyloc or re-render the database")
+        try:
+            grid = GridSpec(tuple(float(v) for v in attrs["geotransform"]), int(attrs["nx"]), int(attrs["ny"]),
+                            str(attrs.get("crs_wkt", "")))
+            names = {f for f in cls.__dataclass_fields__} - {"grid"}
+            kw = {k: attrs[k] for k in names if k in attrs}
+            meta = cls(grid=grid, **kw)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FormatError(f"{where} has corrupt metadata ({exc}); re-render the database") from exc
+        if attrs.get("elevation_scale_deg", ELEVATION_SCALE_DEG) != ELEVATION_SCALE_DEG:
+            raise FormatError(f"{where} uses an unknown elevation scale {attrs.get('elevation_scale_deg')}")
+        return meta
+
+
+def quantize_elevation(el_deg: np.ndarray) -> np.ndarray:
+    """Degrees (NaN = missing) -> int16 in 0.01 degree units with the MISSING sentinel."""
+    el = np.asarray(el_deg, dtype=np.float64)
+    q = np.round(el / ELEVATION_SCALE_DEG)
+    q = np.clip(q, -32767, 32767)
+    out = np.where(np.isfinite(el), q, MISSING).astype(np.int16)
+    return out
+
+
+def dequantize_elevation(q: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """int16 0.01-degree units -> degrees (``dtype``), NaN where MISSING."""
+    out = q.astype(dtype) * dtype(ELEVATION_SCALE_DEG)
+    out[q == MISSING] = np.nan
+    return out
+
+
+def _zarr():
+    try:
+        import zarr  # noqa: PLC0415
+    except ImportError as exc:  # pragma: no cover - zarr is a hard dependency of the package
+        raise FormatError("reading a skyline database needs the 'zarr' package: pip install zarr") from exc
+    return zarr
+
+
+class SkyDBWriter:
+    """Creates or resumes a skyline database and writes whole tiles.
+
+    Use :meth:`create` (new store, or resume a compatible existing one).  Each
+    :meth:`write_tile` writes the tile's chunk(s) then marks it done, so an interrupted
+    render loses at most the tile in progress and never rewrites a finished one.
+    """
+
+    def __init__(self, path: Path, meta: SkyDBMeta, group) -> None:
+        self.path = Path(path)
+        self.meta = meta
+        self._group = group
+        self.tiles = plan_tiles(meta.grid, meta.tile_size)
+
+    @classmethod
+    def create(cls, path: str | os.PathLike, meta: SkyDBMeta, *, overwrite: bool = False) -> "SkyDBWriter":
+        """Create a new store, or reopen ``path`` to resume if it holds the same render.
+
+        Raises InvalidInputError when ``path`` holds a different database (other grid, DEM,
+        height or sampling) unless ``overwrite``.
+        """
+        zarr = _zarr()
+        path = Path(path)
+        if meta.n_azimuth <= 0 or meta.tile_size <= 0:
+            raise InvalidInputError("n_azimuth and tile_size must be positive")
+        if path.exists() and not overwrite:
+            existing = SkyDB.open(path)
+            mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
+            keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
+                    "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
+                    "has_distance")
+            diff = [k for k in keys if mine.get(k) != theirs.get(k)]
+            if diff:
+                raise InvalidInputError(
+                    f"{path} already holds a different skyline database (differs in {', '.join(diff)}); "
+                    "choose another --out or delete it")
+            log.info("resuming %s: %d of %d tiles done", path, existing.n_tiles_done(), len(existing.tiles))
+            return cls(path, existing.meta, zarr.open_group(str(path), mode="r+"))
+        if path.exists() and overwrite:
+            import shutil  # noqa: PLC0415
+            shutil.rmtree(path)
+        g = meta.grid
+        group = zarr.open_group(str(path), mode="w")
+        t = meta.tile_size
+        group.create_array("elevation", shape=(g.ny, g.nx, meta.n_azimuth), chunks=(t, t, meta.n_azimuth),
+                           dtype="int16", fill_value=int(MISSING), dimension_names=("y", "x", "azimuth"))
+        if meta.has_distance:
+            group.create_array("distance", shape=(g.ny, g.nx, meta.n_azimuth), chunks=(t, t, meta.n_azimuth),
+                               dtype="uint16", fill_value=int(DISTANCE_MISSING),
+                               dimension_names=("y", "x", "azimuth"))
+        nty, ntx = math.ceil(g.ny / t), math.ceil(g.nx / t)
+        group.create_array("tile_done", shape=(nty, ntx), chunks=(1, 1), dtype="uint8", fill_value=0)
+        group.attrs.update(meta.to_attrs())
+        return cls(path, meta, group)
+
+    def done_mask(self) -> np.ndarray:
+        """(n_tiles_y, n_tiles_x) bool: tiles already written."""
+        return np.asarray(self._group["tile_done"][...]).astype(bool)
+
+    def pending_tiles(self) -> list[Tile]:
+        """Tiles not yet written, in row-major order."""
+        done = self.done_mask()
+        return [t for t in self.tiles if not done[t.ti, t.tj]]
+
+    def write_tile(self, tile: Tile, elevation_deg: np.ndarray, distance_m: np.ndarray | None = None) -> None:
+        """Write one whole tile: ``elevation_deg`` (nrows, ncols, n_az) degrees, NaN = missing."""
+        shape = (tile.nrows, tile.ncols, self.meta.n_azimuth)
+        if elevation_deg.shape != shape:
+            raise InvalidInputError(f"tile {tile.key} expects elevations of shape {shape}, got {elevation_deg.shape}")
+        if self.done_mask()[tile.ti, tile.tj]:
+            raise InvalidInputError(f"tile {tile.key} of {self.path} is already written; tiles are written once")
+        sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
+        self._group["elevation"][sl] = quantize_elevation(elevation_deg)
+        if self.meta.has_distance:
+            if distance_m is None:
+                raise InvalidInputError("this database stores horizon distances: pass distance_m")
+            d = np.asarray(distance_m, dtype=np.float64) / DISTANCE_SCALE_M
+            dq = np.where(np.isfinite(d), np.clip(np.round(d), 0, 65534), DISTANCE_MISSING).astype(np.uint16)
+            self._group["distance"][sl] = dq
+        self._group["tile_done"][tile.ti, tile.tj] = 1
+
+    def finalize(self) -> "SkyDB":
+        """Mark the database complete (all tiles done) and return a reader."""
+        pending = self.pending_tiles()
+        if pending:
+            raise InvalidInputError(f"{len(pending)} tiles of {self.path} are not written yet")
+        self._group.attrs["complete"] = True
+        return SkyDB.open(self.path)
+
+
+class SkyDB:
+    """Read-only access to a skyline database, streamed tile by tile (bounded memory)."""
+
+    def __init__(self, path: Path, meta: SkyDBMeta, group, complete: bool) -> None:
+        self.path = path
+        self.meta = meta
+        self._group = group
+        self.complete = complete
+        self.tiles = plan_tiles(meta.grid, meta.tile_size)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> "SkyDB":
+        """Open and validate a store; FormatError with the reason if it cannot be read."""
+        zarr = _zarr()
+        path = Path(path)
+        if not path.exists():
+            raise FormatError(f"no skyline database at {path}: render one with `skyloc db render`")
+        meta_file = path / "zarr.json"
+        if not meta_file.is_file():
+            raise FormatError(f"{path} is not a Zarr v3 store (no zarr.json): not a skyline database")
+        try:
+            json.loads(meta_file.read_text())
+            group = zarr.open_group(str(path), mode="r")
+            attrs = dict(group.attrs)
+        except Exception as exc:  # zarr raises a variety of errors on damaged stores
+            raise FormatError(f"{path} is corrupt ({type(exc).__name__}: {exc}); re-render it") from exc
+        meta = SkyDBMeta.from_attrs(attrs, where=str(path))
+        try:
+            arr = group["elevation"]
+            done = group["tile_done"]
+        except KeyError as exc:
+            raise FormatError(f"{path} is corrupt: missing array {exc}; re-render it") from exc
+        g = meta.grid
+        if tuple(arr.shape) != (g.ny, g.nx, meta.n_azimuth) or str(arr.dtype) != "int16":
+            raise FormatError(f"{path} is corrupt: elevation array has shape {arr.shape} / {arr.dtype}, "
+                              f"metadata says {(g.ny, g.nx, meta.n_azimuth)} int16")
+        if tuple(done.shape) != (math.ceil(g.ny / meta.tile_size), math.ceil(g.nx / meta.tile_size)):
+            raise FormatError(f"{path} is corrupt: tile_done has shape {done.shape}")
+        return cls(path, meta, group, bool(attrs.get("complete", False)))
+
+    @property
+    def grid(self) -> GridSpec:
+        return self.meta.grid
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.grid.ny, self.grid.nx, self.meta.n_azimuth)
+
+    def done_mask(self) -> np.ndarray:
+        return np.asarray(self._group["tile_done"][...]).astype(bool)
+
+    def n_tiles_done(self) -> int:
+        return int(self.done_mask().sum())
+
+    def _read(self, name: str, tile: Tile) -> np.ndarray:
+        sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
+        try:
+            return np.asarray(self._group[name][sl])
+        except Exception as exc:
+            raise FormatError(f"{self.path}: cannot read tile {tile.key} of {name} "
+                              f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
+
+    def read_tile_raw(self, tile: Tile) -> np.ndarray:
+        """int16 elevations (0.01 degree units, MISSING sentinel) of one tile."""
+        return self._read("elevation", tile)
+
+    def read_tile(self, tile: Tile) -> np.ndarray:
+        """float32 elevations in degrees (NaN = missing), shape (nrows, ncols, n_az)."""
+        return dequantize_elevation(self.read_tile_raw(tile))
+
+    def read_distance(self, tile: Tile) -> np.ndarray | None:
+        """Horizon distances (metres, float32, NaN = missing) of one tile, or None if not stored."""
+        if not self.meta.has_distance:
+            return None
+        q = self._read("distance", tile)
+        d = q.astype(np.float32) * np.float32(DISTANCE_SCALE_M)
+        d[q == DISTANCE_MISSING] = np.nan
+        return d
+
+    def iter_tiles(self) -> Iterator[tuple[Tile, np.ndarray]]:
+        """Yield (tile, float32 elevations in degrees) one tile at a time."""
+        for t in self.tiles:
+            yield t, self.read_tile(t)
+
+    def skyline(self, i: int, j: int) -> np.ndarray:
+        """Elevations (degrees, float32, NaN = missing) at grid row ``i``, column ``j``."""
+        g = self.grid
+        if not (0 <= i < g.ny and 0 <= j < g.nx):
+            raise InvalidInputError(f"grid index ({i}, {j}) is outside the {g.ny} x {g.nx} grid")
+        return dequantize_elevation(np.asarray(self._group["elevation"][i, j, :]))
+
+    def read_all(self) -> np.ndarray:
+        """All elevations (degrees, float32). Only for small databases: use iter_tiles otherwise."""
+        return dequantize_elevation(np.asarray(self._group["elevation"][...]))
+
+    def size_bytes(self) -> int:
+        """Bytes on disk of the store."""
+        return sum(f.stat().st_size for f in self.path.rglob("*") if f.is_file())
+
+    def summary(self) -> dict:
+        """A JSON-able summary (for `skyloc db info`)."""
+        m, g = self.meta, self.grid
+        return {
+            "path": str(self.path),
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "grid": {"nx": g.nx, "ny": g.ny, "step_m": abs(g.geotransform[1]), "geotransform": list(g.geotransform),
+                     "bounds": list(g.bounds())},
+            "positions": g.n_positions,
+            "crs_wkt": g.crs_wkt,
+            "camera_height_m": m.camera_height_m,
+            "n_azimuth": m.n_azimuth,
+            "azimuth_start_deg": m.azimuth_start_deg,
+            "azimuth_step_deg": m.azimuth_step_deg,
+            "body": m.body,
+            "body_radius_m": m.body_radius_m,
+            "refraction_k": m.refraction_k,
+            "renderer": m.renderer,
+            "renderer_version": m.renderer_version,
+            "dem_sha256": m.dem_sha256,
+            "tile_size": m.tile_size,
+            "tiles_done": self.n_tiles_done(),
+            "tiles_total": len(self.tiles),
+            "complete": self.complete,
+            "created_utc": m.created_utc,
+            "size_bytes": self.size_bytes(),
+        }

@@ -1,0 +1,1 @@
+"""Skyline-database renderers sharing the ``render_tile(terrain, tile, spec)`` API."""

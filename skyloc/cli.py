@@ -1,0 +1,59 @@
+"""`skyloc` console entry point.
+
+Each package owns its subcommands through a ``register(group)`` function in its
+``cli`` module; this module only builds the root group, sets up logging and maps
+:class:`board.errors.SkylocError` to a clean error message and exit status 1.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+
+import click
+
+from board.errors import SkylocError
+
+log = logging.getLogger(__name__)
+
+#: Packages whose ``cli.register(group)`` adds subcommands, in help order.
+PLUGIN_MODULES = ("blender_addon.cli", "render_service.cli", "board.cli")
+
+
+class SkylocGroup(click.Group):
+    """Root group: turns SkylocError into ClickException (traceback only with -vv)."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except SkylocError as exc:
+            if logging.getLogger().level <= logging.DEBUG:
+                log.exception("skyloc failed")
+            raise click.ClickException(str(exc)) from exc
+
+
+@click.group(cls=SkylocGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug with tracebacks).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.version_option(package_name="skyloc")
+def main(verbose: int, quiet: bool) -> None:
+    """skyloc: absolute rover localisation by skyline matching, and its simulator."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+
+
+def _register_plugins() -> None:
+    for name in PLUGIN_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # that package has no CLI yet
+                continue
+            raise
+        mod.register(main)
+
+
+_register_plugins()
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

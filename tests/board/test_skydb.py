@@ -1,0 +1,90 @@
+"""Skyline database: round trip, resume without rewriting, refusal of bad stores."""
+import json
+
+import numpy as np
+import pytest
+
+from board.errors import FormatError, InvalidInputError
+from board.skydb import GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, dequantize_elevation, quantize_elevation
+
+
+def _meta(tile=4, **kw):
+    grid = GridSpec.from_center((1000.0, 2000.0), size_m=45.0, step_m=5.0, crs_wkt="LOCAL_CS[\"test\"]")
+    return SkyDBMeta(grid=grid, camera_height_m=2.0, n_azimuth=36, tile_size=tile, dem_sha256="abc", **kw)
+
+
+def test_grid_matches_gdal_pixel_centres():
+    g = GridSpec.from_center((1000.0, 2000.0), size_m=1000.0, step_m=5.0)
+    assert (g.nx, g.ny) == (201, 201) and g.n_positions == 40401
+    x, y = g.xy(0, 0)
+    assert (x, y) == (500.0, 2500.0)  # row 0 is the northern edge, column 0 the western
+    x, y = g.xy(100, 100)
+    assert (x, y) == (1000.0, 2000.0)
+    assert g.ij(1000.0, 2000.0) == (100.0, 100.0)
+
+
+def test_quantize_round_trip_and_missing():
+    el = np.array([-12.345, 0.0, 3.14159, np.nan, 89.99])
+    back = dequantize_elevation(quantize_elevation(el))
+    assert np.isnan(back[3])
+    np.testing.assert_allclose(back[[0, 1, 2, 4]], el[[0, 1, 2, 4]], atol=0.005 + 1e-6)
+
+
+def test_round_trip_and_resume_never_rewrites(tmp_path):
+    path = tmp_path / "db.zarr"
+    meta = _meta(has_distance=True)
+    w = SkyDBWriter.create(path, meta)
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(-5, 30, size=(10, 10, 36)).astype(np.float32)
+    truth[2, 3, 5] = np.nan
+    tiles = w.tiles
+    assert len(tiles) == 9  # 10 x 10 positions in tiles of 4: 3 x 3
+    for t in tiles[:4]:
+        sl = np.s_[t.row0:t.row0 + t.nrows, t.col0:t.col0 + t.ncols]
+        w.write_tile(t, truth[sl], distance_m=np.full(truth[sl].shape, 1234.0))
+    # "interrupted": a new writer resumes with the 5 remaining tiles
+    w2 = SkyDBWriter.create(path, meta)
+    pending = w2.pending_tiles()
+    assert [t.key for t in pending] == [t.key for t in tiles[4:]]
+    with pytest.raises(InvalidInputError, match="already written"):
+        w2.write_tile(tiles[0], np.zeros((4, 4, 36)))
+    with pytest.raises(InvalidInputError):
+        w2.finalize()
+    for t in pending:
+        sl = np.s_[t.row0:t.row0 + t.nrows, t.col0:t.col0 + t.ncols]
+        w2.write_tile(t, truth[sl], distance_m=np.full(truth[sl].shape, 1234.0))
+    db = w2.finalize()
+    assert db.complete and db.n_tiles_done() == 9
+    got = db.read_all()
+    assert np.isnan(got[2, 3, 5])
+    np.testing.assert_allclose(got, truth, atol=0.0051)
+    np.testing.assert_allclose(db.skyline(7, 8), truth[7, 8], atol=0.0051)
+    d = db.read_distance(db.tiles[0])
+    assert np.all(d == 1230.0)
+    s = db.summary()
+    assert s["positions"] == 100 and s["tiles_done"] == 9 and s["dem_sha256"] == "abc"
+
+
+def test_resume_refuses_a_different_database(tmp_path):
+    path = tmp_path / "db.zarr"
+    SkyDBWriter.create(path, _meta())
+    other = _meta()
+    other.camera_height_m = 1.5
+    with pytest.raises(InvalidInputError, match="camera_height_m"):
+        SkyDBWriter.create(path, other)
+
+
+def test_reader_refuses_unknown_version_and_corrupt(tmp_path):
+    path = tmp_path / "db.zarr"
+    SkyDBWriter.create(path, _meta())
+    zj = path / "zarr.json"
+    doc = json.loads(zj.read_text())
+    doc["attributes"]["version"] = 99
+    zj.write_text(json.dumps(doc))
+    with pytest.raises(FormatError, match="version 99"):
+        SkyDB.open(path)
+    zj.write_text("{ not json")
+    with pytest.raises(FormatError, match="corrupt"):
+        SkyDB.open(path)
+    with pytest.raises(FormatError, match="no skyline database"):
+        SkyDB.open(tmp_path / "nothing.zarr")

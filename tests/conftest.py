@@ -1,0 +1,37 @@
+"""Shared pytest fixtures: the real DEMs in ../shared/data/dems and a sandboxed Blender config."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_TMP = Path(tempfile.mkdtemp(prefix="skyloc-tests-"))
+# Blender writes user config and caches under ~/.config: keep tests hermetic.
+os.environ.setdefault("BLENDER_USER_RESOURCES", str(_TMP / "blender"))
+os.environ.setdefault("XDG_CACHE_HOME", str(_TMP / "xdg"))
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DEMS = REPO.parent / "shared" / "data" / "dems"
+
+
+@pytest.fixture(scope="session")
+def dems_dir() -> Path:
+    """Folder of the real DEMs; skips the test cleanly when it is absent."""
+    if not SHARED_DEMS.is_dir():
+        pytest.skip(f"real DEMs not found at {SHARED_DEMS} (the shared/ folder beside the repository)")
+    return SHARED_DEMS
+
+
+@pytest.fixture(scope="session")
+def real_dem(dems_dir):
+    """Return a function name -> path of a real DEM, skipping when that file is missing."""
+
+    def get(name: str) -> Path:
+        p = dems_dir / name
+        if not p.is_file():
+            pytest.skip(f"real DEM {name} not found in {dems_dir}")
+        return p
+
+    return get
