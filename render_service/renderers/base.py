@@ -1,0 +1,78 @@
+"""The renderer contract: ``render_tile(terrain, grid, tile, spec) -> TileResult``.
+
+Every skyline-database renderer (the numba ray-marcher, the Blender renderer) exposes a
+function of this signature so that the CLI and the service's Dask workers can farm tiles
+out without knowing which renderer runs.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+import numpy as np
+
+from board.errors import InvalidInputError
+from board.skydb import GridSpec, Tile
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """What to render at every position.
+
+    camera_height_m : eye height above the ground at the position, metres
+    n_azimuth : number of azimuth samples (360 -> 1 degree)
+    azimuth_start_deg : azimuth of sample 0, degrees clockwise from grid north
+    body_radius_m : sphere radius for the curvature drop d^2/2R, metres
+    refraction_k : refraction coefficient (0 on airless bodies)
+    max_distance_m : stop marching beyond this distance (None: the terrain's edge)
+    """
+
+    camera_height_m: float = 2.0
+    n_azimuth: int = 360
+    azimuth_start_deg: float = 0.0
+    body_radius_m: float = 3_389_500.0
+    refraction_k: float = 0.0
+    max_distance_m: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.n_azimuth > 0):
+            raise InvalidInputError(f"n_azimuth must be positive, got {self.n_azimuth}")
+        if not (self.body_radius_m > 0):
+            raise InvalidInputError(f"body radius must be positive, got {self.body_radius_m}")
+        if not (self.camera_height_m >= 0):
+            raise InvalidInputError(f"camera height must be >= 0 m, got {self.camera_height_m}")
+
+    def azimuths_deg(self) -> np.ndarray:
+        return self.azimuth_start_deg + np.arange(self.n_azimuth) * (360.0 / self.n_azimuth)
+
+
+@dataclass
+class TileResult:
+    """A rendered tile: elevation_deg and distance_m, both (nrows, ncols, n_azimuth) float32.
+
+    elevation_deg : horizon elevation, degrees above the eye's local horizontal
+    distance_m : horizontal distance to the point that forms the horizon, metres (NaN if none)
+    """
+
+    elevation_deg: np.ndarray
+    distance_m: np.ndarray | None = None
+
+
+class RenderTileFn(Protocol):
+    def __call__(self, terrain, grid: GridSpec, tile: Tile, spec: RenderSpec) -> TileResult: ...
+
+
+#: renderer name -> "module:function" implementing RenderTileFn
+RENDERERS: dict[str, str] = {
+    "raymarch": "render_service.renderers.raymarch:render_tile",
+    "blender": "blender_addon.core.skyline_renderer:render_tile",
+}
+
+
+def get_renderer(name: str) -> Callable[..., TileResult]:
+    """Resolve a renderer name to its ``render_tile`` function."""
+    if name not in RENDERERS:
+        raise InvalidInputError(f"unknown renderer {name!r}: choose one of {', '.join(RENDERERS)}")
+    mod, fn = RENDERERS[name].split(":")
+    return getattr(importlib.import_module(mod), fn)
