@@ -1,7 +1,7 @@
 """`skyloc` console entry point.
 
 Each package owns its subcommands through a ``register(group)`` function in its
-``cli`` module; this module only builds the root group, sets up logging and maps
+``cli_*`` modules; this module only builds the root group, sets up logging and maps
 :class:`board.errors.SkylocError` to a clean error message and exit status 1.
 """
 from __future__ import annotations
@@ -15,8 +15,15 @@ from board.errors import SkylocError
 
 log = logging.getLogger(__name__)
 
-#: Packages whose ``cli.register(group)`` adds subcommands, in help order.
-PLUGIN_MODULES = ("blender_addon.cli", "render_service.cli", "board.cli")
+#: Modules whose ``register(group)`` adds subcommands; each package owns its own ``cli_*`` modules.
+PLUGIN_MODULES = (
+    "blender_addon.cli_dem",      # skyloc dem synth|prepare
+    "blender_addon.cli_sim",      # skyloc sim panorama|acquire|dataset
+    "render_service.cli_db",      # skyloc db render|info|horizon
+    "render_service.cli_serve",   # skyloc serve
+    "board.cli_extract",          # skyloc extract
+    "board.cli_locate",           # skyloc locate
+)
 
 
 class SkylocGroup(click.Group):
