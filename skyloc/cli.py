@@ -18,7 +18,8 @@ log = logging.getLogger(__name__)
 #: Modules whose ``register(group)`` adds subcommands; each package owns its own ``cli_*`` modules.
 PLUGIN_MODULES = (
     "blender_addon.cli_dem",      # skyloc dem synth|prepare
-    "blender_addon.cli_sim",      # skyloc sim panorama|acquire|dataset
+    "blender_addon.cli_sim",      # skyloc sim panorama
+    "blender_addon.cli_sim_acquire",  # skyloc sim acquire|dataset (adds to the sim group)
     "render_service.cli_db",      # skyloc db render|info|horizon
     "render_service.cli_serve",   # skyloc serve
     "board.cli_extract",          # skyloc extract
