@@ -155,5 +155,5 @@ def rotation_enu_from_camera(heading_deg: float, pitch_deg: float = 0.0, roll_de
     # pitch about the left (y) axis: nose-up positive
     R_pitch = np.array([[math.cos(p), 0.0, -math.sin(p)], [0.0, 1.0, 0.0], [math.sin(p), 0.0, math.cos(p)]])
     # roll about the forward (x) axis: right side down positive (left side up)
-    R_roll = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(r), math.sin(r)], [0.0, -math.sin(r), math.cos(r)]])
+    R_roll = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(r), -math.sin(r)], [0.0, math.sin(r), math.cos(r)]])
     return R_heading @ R_pitch @ R_roll
