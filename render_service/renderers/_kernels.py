@@ -1,0 +1,173 @@
+"""numba kernels of the ray-march renderer (arrays in, arrays out).
+
+Frames and units: x east, y north in the terrain's projected metric CRS (metres); heights in
+metres; directions are (sin az, cos az) with azimuth clockwise from grid north.  A level ``L``
+is a north-up grid whose cell ``(r, c)`` has its centre at ``(x0 + (c + 0.5) cell, y0 - (r + 0.5)
+cell)``; its fractional indices are ``u = (x - x0) / cell - 0.5`` (column) and
+``v = (y0 - y) / cell - 0.5`` (row).
+
+The levels are packed into one flat float32 array (``heights`` with per-level ``offsets``,
+``rows``, ``cols``, ``x0``, ``y0``, ``cell``).  For empty-space skipping each level also has two
+tiers of block maxima (``blk*`` arrays) of the *bilinear footprint*: block ``(bi, bj)`` of size
+``B`` holds the maximum of the cells ``bi*B .. bi*B+B`` x ``bj*B .. bj*B+B`` (one more than the
+block on each axis, since bilinear interpolation inside the block reads the next cell too), so
+no sample inside the block can be higher.
+
+Everything is compared as tangents ``(z - z_eye - c d^2) / d`` with ``c = (1 - k) / 2R`` and the
+arc tangent is taken once per ray.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_NOGIL = dict(nogil=True, cache=True, fastmath=False, error_model="numpy")
+
+
+@njit(inline="always", **_NOGIL)
+def _bound_tan(a_m: float, d_m: float, c_per_m: float) -> float:
+    """Upper bound of (A - c d'^2) / d' over all d' >= d (A metres above the eye, c = (1-k)/2R)."""
+    if a_m > 0.0:
+        return a_m / d_m - c_per_m * d_m
+    if c_per_m <= 0.0:
+        return 0.0
+    # A <= 0: f(d') = A/d' - c d' peaks at d* = sqrt(-A/c) with value -2 sqrt(-A c)
+    if d_m * d_m >= -a_m / c_per_m:
+        return a_m / d_m - c_per_m * d_m
+    return -2.0 * math.sqrt(-a_m * c_per_m)
+
+
+@njit(inline="always", **_NOGIL)
+def _bilinear(heights, off, ncols, u, v):
+    """Bilinear height at fractional (column u, row v); caller guarantees 0 <= u <= cols-1 etc."""
+    c0 = int(u)
+    r0 = int(v)
+    fu = u - c0
+    fv = v - r0
+    c1 = c0 + 1 if fu > 0.0 else c0
+    r1 = r0 + 1 if fv > 0.0 else r0
+    i00 = off + r0 * ncols + c0
+    i01 = off + r0 * ncols + c1
+    i10 = off + r1 * ncols + c0
+    i11 = off + r1 * ncols + c1
+    top = heights[i00] + fu * (heights[i01] - heights[i00])
+    bot = heights[i10] + fu * (heights[i11] - heights[i10])
+    return top + fv * (bot - top)
+
+
+@njit(inline="always", **_NOGIL)
+def _exit_distance(u, v, du, dv, lo_u, hi_u, lo_v, hi_v):
+    """Ray parameter (metres) to leave the box [lo_u, hi_u) x [lo_v, hi_v) in index space."""
+    t = 1e30
+    if du > 0.0:
+        t = min(t, (hi_u - u) / du)
+    elif du < 0.0:
+        t = min(t, (lo_u - u) / du)
+    if dv > 0.0:
+        t = min(t, (hi_v - v) / dv)
+    elif dv < 0.0:
+        t = min(t, (lo_v - v) / dv)
+    return t
+
+
+@njit(**_NOGIL)
+def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
+              blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
+              c_per_m, d_start, min_step, step_per_m, max_dist):
+    """March one ray; return (best tangent, its distance in metres), (-inf, nan) if no sample."""
+    nlev = offsets.shape[0]
+    best = -np.inf
+    best_d = np.nan
+    d = d_start
+    lev = 0
+    while d <= max_dist:
+        x = px + d * sx
+        y = py + d * sy
+        # finest level containing the point (levels are nested: a ray never re-enters one)
+        while lev < nlev:
+            inv = 1.0 / cell[lev]
+            u = (x - x0[lev]) * inv - 0.5
+            v = (y0[lev] - y) * inv - 0.5
+            if u >= 0.0 and v >= 0.0 and u <= cols[lev] - 1 and v <= rows[lev] - 1:
+                break
+            lev += 1
+        if lev >= nlev:
+            break
+        # nothing left on this level or the coarser ones can beat the best tangent
+        if _bound_tan(suffix_max[lev] - z_eye, d, c_per_m) <= best:
+            break
+        inv = 1.0 / cell[lev]
+        du = sx * inv
+        dv = -sy * inv
+        ci = int(u)
+        ri = int(v)
+        # empty-space skipping: big blocks first, then small ones
+        b2 = blk2_size
+        bj = ci // b2
+        bi = ri // b2
+        bm = blk2[blk2_off[lev] + bi * blk2_cols[lev] + bj]
+        if _bound_tan(bm - z_eye, d, c_per_m) <= best:
+            t = _exit_distance(u, v, du, dv, bj * b2, (bj + 1) * b2, bi * b2, (bi + 1) * b2)
+            d += max(t, 0.0) + 1e-6 * cell[lev]
+            continue
+        b1 = blk1_size
+        bj = ci // b1
+        bi = ri // b1
+        bm = blk1[blk1_off[lev] + bi * blk1_cols[lev] + bj]
+        if _bound_tan(bm - z_eye, d, c_per_m) <= best:
+            t = _exit_distance(u, v, du, dv, bj * b1, (bj + 1) * b1, bi * b1, (bi + 1) * b1)
+            d += max(t, 0.0) + 1e-6 * cell[lev]
+            continue
+        z = _bilinear(heights, offsets[lev], cols[lev], u, v)
+        tan = (z - z_eye - c_per_m * d * d) / d
+        if tan > best:
+            best = tan
+            best_d = d
+        step = step_per_m * d
+        if step < min_step:
+            step = min_step
+        if step > cell[lev]:
+            step = cell[lev]
+        d += step
+    return best, best_d
+
+
+@njit(**_NOGIL)
+def eye_height(px, py, heights, offsets, rows, cols, x0, y0, cell):
+    """Bilinear ground height (metres) on level 0 at (px, py); NaN outside level 0."""
+    inv = 1.0 / cell[0]
+    u = (px - x0[0]) * inv - 0.5
+    v = (y0[0] - py) * inv - 0.5
+    if u < 0.0 or v < 0.0 or u > cols[0] - 1 or v > rows[0] - 1:
+        return np.nan
+    return _bilinear(heights, offsets[0], cols[0], u, v)
+
+
+@njit(parallel=True, **_NOGIL)
+def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
+                     blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
+                     c_per_m, d_start, min_step, step_per_m, max_dist):
+    """Horizon of many positions: (elevation degrees, distance metres), each (n_pos, n_az) float32.
+
+    Positions outside level 0 (no ground height) or rays without any sample give NaN.
+    """
+    npos = px.shape[0]
+    naz = sin_az.shape[0]
+    el = np.full((npos, naz), np.nan, dtype=np.float32)
+    dist = np.full((npos, naz), np.nan, dtype=np.float32)
+    for p in prange(npos):
+        zg = eye_height(px[p], py[p], heights, offsets, rows, cols, x0, y0, cell)
+        if not np.isfinite(zg):
+            continue
+        z_eye = zg + cam_h
+        for a in range(naz):
+            best, bd = march_ray(px[p], py[p], z_eye, sin_az[a], cos_az[a], heights, offsets, rows, cols,
+                                 x0, y0, cell, suffix_max, blk1, blk1_off, blk1_cols, blk1_size,
+                                 blk2, blk2_off, blk2_cols, blk2_size, c_per_m, d_start, min_step,
+                                 step_per_m, max_dist)
+            if best > -np.inf:
+                el[p, a] = math.degrees(math.atan(best))
+                dist[p, a] = bd
+    return el, dist

@@ -1,0 +1,91 @@
+"""Brute-force horizon reference for tests and benchmarks (deliberately simple and slow).
+
+A fixed step of ``step_cells`` cells (default a quarter cell) on the full-resolution DEM, bilinear
+sampling, the same curvature drop ``d^2 (1 - k) / 2R`` as the renderer, out to the DEM's edge
+(or ``spec.max_distance_m``).  No multi-resolution, no skipping, no early termination: this is the
+independent truth the ray-marcher is checked against.  Coordinates in the DEM's metric CRS.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from blender_addon.terrain.model import DemRaster
+from board.errors import InvalidInputError
+from render_service.renderers.base import RenderSpec
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _brute(a, x0, y0, cell, px, py, cam_h, sin_az, cos_az, c_per_m, step, max_dist):
+    rows, cols = a.shape
+    naz = sin_az.shape[0]
+    el = np.full(naz, np.nan)
+    dist = np.full(naz, np.nan)
+    u = (px - x0) / cell - 0.5
+    v = (y0 - py) / cell - 0.5
+    c0 = int(u)
+    r0 = int(v)
+    fu, fv = u - c0, v - r0
+    c1 = min(c0 + 1, cols - 1)
+    r1 = min(r0 + 1, rows - 1)
+    zg = (a[r0, c0] * (1 - fu) * (1 - fv) + a[r0, c1] * fu * (1 - fv)
+          + a[r1, c0] * (1 - fu) * fv + a[r1, c1] * fu * fv)
+    z_eye = zg + cam_h
+    for k in prange(naz):
+        best = -np.inf
+        best_d = np.nan
+        n = 1
+        while True:
+            d = n * step
+            if d > max_dist:
+                break
+            u = (px + d * sin_az[k] - x0) / cell - 0.5
+            v = (y0 - (py + d * cos_az[k])) / cell - 0.5
+            if u < 0.0 or v < 0.0 or u > cols - 1 or v > rows - 1:
+                break
+            c0 = int(u)
+            r0 = int(v)
+            fu, fv = u - c0, v - r0
+            c1 = min(c0 + 1, cols - 1)
+            r1 = min(r0 + 1, rows - 1)
+            z = (a[r0, c0] * (1 - fu) * (1 - fv) + a[r0, c1] * fu * (1 - fv)
+                 + a[r1, c0] * (1 - fu) * fv + a[r1, c1] * fu * fv)
+            t = (z - z_eye - c_per_m * d * d) / d
+            if t > best:
+                best = t
+                best_d = d
+            n += 1
+        if best > -np.inf:
+            el[k] = math.degrees(math.atan(best))
+            dist[k] = best_d
+    return el, dist
+
+
+def brute_force_horizon_with_distance(dem: DemRaster, x: float, y: float, spec: RenderSpec, *,
+                                      step_cells: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(azimuth_deg, elevation_deg, distance_m), each (n_azimuth,), at (x, y) metres in the DEM's CRS."""
+    gt = dem.geotransform
+    if gt[2] != 0 or gt[4] != 0 or gt[5] >= 0 or abs(abs(gt[1]) - abs(gt[5])) > 1e-6 * abs(gt[1]):
+        raise InvalidInputError("the brute-force reference needs a north-up DEM with square cells")
+    xmin, ymin, xmax, ymax = dem.bounds()
+    cell = abs(gt[1])
+    if not (xmin + cell / 2 <= x <= xmax - cell / 2 and ymin + cell / 2 <= y <= ymax - cell / 2):
+        raise InvalidInputError(f"({x}, {y}) is outside the DEM (x {xmin}..{xmax}, y {ymin}..{ymax} m)")
+    if not step_cells > 0:
+        raise InvalidInputError(f"step_cells must be positive, got {step_cells}")
+    az = spec.azimuths_deg()
+    rad = np.radians(az)
+    max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
+    el, dist = _brute(np.ascontiguousarray(dem.array, dtype=np.float64), float(gt[0]), float(gt[3]), cell,
+                      float(x), float(y), float(spec.camera_height_m), np.sin(rad), np.cos(rad),
+                      (1.0 - spec.refraction_k) / (2.0 * spec.body_radius_m), step_cells * cell, max_dist)
+    return az, el, dist
+
+
+def brute_force_horizon(dem: DemRaster, x: float, y: float, spec: RenderSpec, *,
+                        step_cells: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """(azimuth_deg, elevation_deg), each (n_azimuth,), at (x, y) metres in the DEM's CRS."""
+    az, el, _ = brute_force_horizon_with_distance(dem, x, y, spec, step_cells=step_cells)
+    return az, el
