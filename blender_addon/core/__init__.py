@@ -1,0 +1,1 @@
+"""bpy-free simulator logic: terrain meshes, camera presets, plans, degradations, datasets."""
