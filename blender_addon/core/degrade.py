@@ -1,0 +1,472 @@
+"""Image degradations applied in numpy after rendering, and the degradation parameters.
+
+A Blender render is a linear-light image of an ideal pinhole, slightly larger than the
+simulated camera.  :func:`degrade_frame` turns it into what the NavCam records:
+
+1. exposure error: linear gain ``2 ** exposure_ev``;
+2. sun glare: veiling glare around the sun's direction (also when the sun is just out of view);
+3. lens: Brown-Conrady distortion of the calibrated camera (:class:`board.camera.CameraModel`,
+   the coefficients written in the manifest) by remapping the pinhole render, with chromatic
+   dispersion as a slightly different magnification per colour channel (lateral colour),
+   then an optional Gaussian blur;
+4. sensor: shot noise (Poisson in electrons) and read noise (Gaussian), clipping at full well;
+5. sRGB encoding and quantisation to 8 or 16 bits.
+
+Image values are linear, 1.0 = full well.  Every random draw comes from the
+``numpy.random.Generator`` passed in, so a seed reproduces the bytes.
+
+The calibrated model describes the green channel exactly; dispersion, blur and noise are
+not in the manifest and cannot be corrected.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+
+from board.camera import CameraModel
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------------------------
+# parameters
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SunParams:
+    """Sun direction and strength.
+
+    azimuth_deg : degrees clockwise from grid north, or from the rover heading when ``relative``
+    elevation_deg : degrees above the horizon (low values: long shadows, low light)
+    strength : sun irradiance scale (1 = clear Mars noon, before dust extinction)
+    """
+
+    azimuth_deg: float = 135.0
+    elevation_deg: float = 35.0
+    relative: bool = False
+    strength: float = 1.0
+
+
+@dataclass(frozen=True)
+class SkyParams:
+    """Dusty Mars sky and haze.
+
+    dust_tau : vertical dust optical depth (0.3 clear to 3 dust storm); it tints and
+        brightens the sky, dims the sun by ``exp(-tau / sin(elevation))`` and fades distant
+        terrain towards the horizon sky colour with horizontal extinction ``tau / scale_height``
+    scale_height_m : dust scale height, metres (about 11 km on Mars)
+    clear : a clear, dust-free dark sky (the 'clean' look)
+    """
+
+    dust_tau: float = 0.5
+    scale_height_m: float = 11_100.0
+    clear: bool = False
+
+
+@dataclass(frozen=True)
+class RockParams:
+    """Rocks and pebbles (see :mod:`blender_addon.core.rocks`).
+
+    density_per_m2 : rocks of diameter >= d_min_m per square metre
+    d_min_m, d_max_m : diameter range, metres
+    exponent : b of the cumulative size-frequency law N(>D) proportional to D**-b
+    radius_m : scatter radius around the rover, metres
+    near_count : extra large rocks close to the mast (occlusions)
+    near_distance_m, near_diameter_m : (min, max) distance from the mast and diameter of those, metres
+    """
+
+    density_per_m2: float = 0.0
+    d_min_m: float = 0.05
+    d_max_m: float = 1.5
+    exponent: float = 2.5
+    radius_m: float = 40.0
+    near_count: int = 0
+    near_distance_m: tuple[float, float] = (2.0, 6.0)
+    near_diameter_m: tuple[float, float] = (0.5, 1.5)
+
+
+@dataclass(frozen=True)
+class LensParams:
+    """Lens: Brown-Conrady coefficients (written in the manifest), dispersion and blur.
+
+    dispersion : relative magnification difference of red (+) and blue (-) against green
+        (0.002 = 1 px fringe 500 px from the centre)
+    blur_px : Gaussian blur sigma, pixels (0 = none)
+    vignetting : relative light loss at the image corner (0 = none)
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    dispersion: float = 0.0
+    blur_px: float = 0.0
+    vignetting: float = 0.0
+
+    @property
+    def distortion(self) -> dict[str, float]:
+        return {"k1": self.k1, "k2": self.k2, "p1": self.p1, "p2": self.p2, "k3": self.k3}
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Exposure and sensor.
+
+    exposure_ev : exposure error in stops (+1 = twice the light; saturates highlights)
+    full_well_e : electrons at saturation (1.0 in linear units); 0 disables noise
+    read_noise_e : read noise standard deviation, electrons
+    glare : veiling glare strength around the sun (0 = none)
+    bit_depth : 8 or 16 bits per channel in the written image
+    """
+
+    exposure_ev: float = 0.0
+    full_well_e: float = 0.0
+    read_noise_e: float = 0.0
+    glare: float = 0.0
+    bit_depth: int = 8
+
+
+@dataclass(frozen=True)
+class Degradation:
+    """Everything that makes a frame differ from an ideal render.
+
+    binary : terrain white, sky black, nothing else (the report's noise level 1)
+    regolith_albedo : mean regolith albedo; albedo_variation : relative spread of its texture
+    """
+
+    name: str = "clean"
+    binary: bool = False
+    regolith_albedo: float = 0.22
+    albedo_variation: float = 0.35
+    sun: SunParams = field(default_factory=SunParams)
+    sky: SkyParams = field(default_factory=SkyParams)
+    rocks: RockParams = field(default_factory=RockParams)
+    lens: LensParams = field(default_factory=LensParams)
+    sensor: SensorParams = field(default_factory=SensorParams)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict, *, base: "Degradation | None" = None, where: str = "degradation") -> "Degradation":
+        """Build from a (possibly partial) dict over ``base``; unknown keys raise InvalidInputError."""
+        return _merge(base or cls(), d, where)
+
+
+_SECTIONS = {"sun": SunParams, "sky": SkyParams, "rocks": RockParams, "lens": LensParams, "sensor": SensorParams}
+
+
+def _merge(obj, d: dict, where: str):
+    if not isinstance(d, dict):
+        raise InvalidInputError(f"{where}: expected a table of settings, got {d!r}")
+    known = {f.name: f for f in fields(obj)}
+    changes = {}
+    for key, value in d.items():
+        if key not in known:
+            raise InvalidInputError(f"{where}: unknown setting {key!r}; known: {', '.join(known)}")
+        current = getattr(obj, key)
+        if key in _SECTIONS and isinstance(obj, Degradation):
+            changes[key] = _merge(current, value, f"{where}.{key}")
+        elif isinstance(current, bool):
+            if not isinstance(value, bool):
+                raise InvalidInputError(f"{where}.{key}: expected true or false, got {value!r}")
+            changes[key] = value
+        elif isinstance(current, tuple):
+            if not (isinstance(value, (list, tuple)) and len(value) == 2 and value[0] <= value[1]):
+                raise InvalidInputError(f"{where}.{key}: expected [min, max], got {value!r}")
+            changes[key] = (float(value[0]), float(value[1]))
+        elif isinstance(current, (int, float)) and not isinstance(current, bool):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise InvalidInputError(f"{where}.{key}: expected a number, got {value!r}")
+            changes[key] = type(current)(value) if isinstance(current, int) and float(value).is_integer() \
+                else float(value)
+        elif isinstance(current, str):
+            changes[key] = str(value)
+        else:  # pragma: no cover - all fields are covered above
+            changes[key] = value
+    out = replace(obj, **changes)
+    _validate(out, where)
+    return out
+
+
+def _validate(obj, where: str) -> None:
+    def need(cond: bool, msg: str) -> None:
+        if not cond:
+            raise InvalidInputError(f"{where}: {msg}")
+
+    if isinstance(obj, SunParams):
+        need(-10.0 <= obj.elevation_deg <= 90.0, f"sun elevation {obj.elevation_deg} deg must be in [-10, 90]")
+        need(obj.strength >= 0, "sun strength must be >= 0")
+    elif isinstance(obj, SkyParams):
+        need(0.0 <= obj.dust_tau <= 10.0, f"dust optical depth {obj.dust_tau} must be in [0, 10]")
+        need(obj.scale_height_m > 0, "dust scale height must be positive (metres)")
+    elif isinstance(obj, RockParams):
+        need(obj.density_per_m2 >= 0, "rock density must be >= 0 per square metre")
+        need(0 < obj.d_min_m < obj.d_max_m, f"rock diameters need 0 < d_min_m < d_max_m, got {obj.d_min_m}, "
+                                             f"{obj.d_max_m}")
+        need(obj.exponent > 0, "the size-frequency exponent must be positive")
+        need(obj.radius_m > 0, "rock scatter radius must be positive (metres)")
+        need(obj.near_count >= 0, "near_count must be >= 0")
+        need(obj.near_distance_m[0] > 0, "rocks near the mast need a positive minimum distance")
+        need(obj.near_diameter_m[0] > 0, "rocks near the mast need a positive minimum diameter")
+    elif isinstance(obj, LensParams):
+        need(abs(obj.dispersion) < 0.05, f"dispersion {obj.dispersion} is implausible: keep |dispersion| < 0.05")
+        need(obj.blur_px >= 0, "blur_px must be >= 0")
+        need(0 <= obj.vignetting < 1, "vignetting must be in [0, 1)")
+    elif isinstance(obj, SensorParams):
+        need(-8 <= obj.exposure_ev <= 8, f"exposure error {obj.exposure_ev} EV must be within +-8 stops")
+        need(obj.full_well_e >= 0 and obj.read_noise_e >= 0, "full_well_e and read_noise_e must be >= 0")
+        need(obj.read_noise_e == 0 or obj.full_well_e > 0, "read noise needs a full well (full_well_e > 0)")
+        need(obj.glare >= 0, "glare must be >= 0")
+        need(obj.bit_depth in (8, 16), f"bit_depth must be 8 or 16, got {obj.bit_depth}")
+    elif isinstance(obj, Degradation):
+        need(0 < obj.regolith_albedo <= 1, "regolith_albedo must be in (0, 1]")
+        need(0 <= obj.albedo_variation <= 1, "albedo_variation must be in [0, 1]")
+
+
+#: The report's noise levels and the clean look (``--preset``).
+PRESETS: dict[str, Degradation] = {
+    "binary": Degradation(name="binary", binary=True, sky=SkyParams(clear=True, dust_tau=0.0)),
+    "clean": Degradation(name="clean", sky=SkyParams(clear=True, dust_tau=0.0)),
+    "realistic": Degradation(
+        name="realistic",
+        sky=SkyParams(dust_tau=0.6),
+        rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
+        sensor=SensorParams(full_well_e=12_000.0, read_noise_e=15.0),
+    ),
+    "distorted": Degradation(
+        name="distorted",
+        sky=SkyParams(dust_tau=0.6),
+        rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
+        lens=LensParams(k1=-0.12, k2=0.02, p1=4e-4, p2=-3e-4, k3=0.0, dispersion=0.0025, blur_px=0.6,
+                        vignetting=0.15),
+        sensor=SensorParams(full_well_e=12_000.0, read_noise_e=15.0),
+    ),
+}
+
+
+def get_degradation(name: str) -> Degradation:
+    """A preset by name (binary, clean, realistic, distorted)."""
+    key = str(name).strip().lower()
+    if key not in PRESETS:
+        raise InvalidInputError(f"unknown degradation preset {name!r}: use one of {', '.join(PRESETS)}")
+    return PRESETS[key]
+
+
+# --------------------------------------------------------------------------------------------
+# pinhole render geometry
+# --------------------------------------------------------------------------------------------
+def dispersion_scales(dispersion: float, channels: int = 3) -> np.ndarray:
+    """Magnification of each channel relative to green: (1 + d, 1, 1 - d) for RGB; ones for grey."""
+    if channels == 3:
+        return np.array([1.0 + dispersion, 1.0, 1.0 - dispersion])
+    return np.ones(channels)
+
+
+def render_camera_for(camera: CameraModel, *, dispersion: float = 0.0, margin_px: int = 3) -> CameraModel:
+    """The undistorted, centred pinhole to render so that ``camera``'s image can be remapped from it.
+
+    Same focal length (the larger of fx, fy) and square pixels; just large enough to hold every
+    ray the distorted camera sees (for every dispersion scale) plus ``margin_px`` for
+    interpolation and blur.  Raises InvalidInputError when the distortion is not invertible
+    over the image (coefficients beyond the model's one-to-one range).
+    """
+    f = max(camera.fx, camera.fy)
+    # border pixels (and a coarse interior grid) of the distorted image
+    n = 64
+    us = np.concatenate([np.linspace(-0.5, camera.width - 0.5, n), np.full(n, -0.5), np.full(n, camera.width - 0.5),
+                         np.linspace(-0.5, camera.width - 0.5, n)])
+    vs = np.concatenate([np.full(n, -0.5), np.linspace(-0.5, camera.height - 0.5, n),
+                         np.linspace(-0.5, camera.height - 0.5, n), np.full(n, camera.height - 0.5)])
+    gu, gv = np.meshgrid(np.linspace(-0.5, camera.width - 0.5, 9), np.linspace(-0.5, camera.height - 0.5, 9))
+    us = np.concatenate([us, gu.ravel()])
+    vs = np.concatenate([vs, gv.ravel()])
+    x, y = camera.undistort((us - camera.cx) / camera.fx, (vs - camera.cy) / camera.fy)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise InvalidInputError("the lens distortion is not invertible over the whole image: reduce |k1|, |k2|, |k3| "
+                                "(the Brown-Conrady model folds back beyond its one-to-one radius)")
+    s = 1.0 + abs(dispersion)
+    half_w = float(np.max(np.abs(x))) * f * s + margin_px
+    half_h = float(np.max(np.abs(y))) * f * s + margin_px
+    w = 2 * math.ceil(half_w + 0.5)
+    h = 2 * math.ceil(half_h + 0.5)
+    return CameraModel(w, h, f, f, (w - 1) / 2.0, (h - 1) / 2.0)
+
+
+def remap_maps(camera: CameraModel, pinhole: CameraModel, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Pinhole pixel coordinates (u_p, v_p) sampled by every pixel of ``camera``, each (height, width).
+
+    ``scale`` magnifies the ideal normalised coordinates (lateral colour of one channel).
+    """
+    u, v = camera.pixel_grid()
+    x, y = camera.undistort((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy)
+    return pinhole.fx * x * scale + pinhole.cx, pinhole.fy * y * scale + pinhole.cy
+
+
+def bilinear(image: np.ndarray, up: np.ndarray, vp: np.ndarray) -> np.ndarray:
+    """Sample a (H, W) or (H, W, C) image at float pixel coordinates (pixel centres at integers).
+
+    Coordinates are clamped to the image (edge pixels repeat); NaN coordinates give 0.
+    """
+    h, w = image.shape[:2]
+    bad = ~(np.isfinite(up) & np.isfinite(vp))
+    uc = np.clip(np.where(bad, 0.0, up), 0.0, w - 1.0)
+    vc = np.clip(np.where(bad, 0.0, vp), 0.0, h - 1.0)
+    u0 = np.minimum(np.floor(uc).astype(np.intp), w - 2) if w > 1 else np.zeros(uc.shape, np.intp)
+    v0 = np.minimum(np.floor(vc).astype(np.intp), h - 2) if h > 1 else np.zeros(vc.shape, np.intp)
+    fu = (uc - u0)
+    fv = (vc - v0)
+    u1 = np.minimum(u0 + 1, w - 1)
+    v1 = np.minimum(v0 + 1, h - 1)
+    if image.ndim == 3:
+        fu = fu[..., None]
+        fv = fv[..., None]
+        bad = bad[..., None]
+    out = (image[v0, u0] * (1 - fu) * (1 - fv) + image[v0, u1] * fu * (1 - fv)
+           + image[v1, u0] * (1 - fu) * fv + image[v1, u1] * fu * fv)
+    return np.where(bad, 0.0, out)
+
+
+def distort_image(render: np.ndarray, pinhole: CameraModel, camera: CameraModel, *,
+                  dispersion: float = 0.0) -> np.ndarray:
+    """Remap an ideal pinhole render (H_p, W_p[, C]) into ``camera``'s distorted image (H, W[, C]).
+
+    Pixel (u, v) of the result shows the ray ``camera.unproject(u, v)``; with dispersion the
+    red and blue channels see that ray magnified by ``1 +- dispersion``.
+    """
+    if render.shape[:2] != (pinhole.height, pinhole.width):
+        raise InvalidInputError(f"render is {render.shape[1]}x{render.shape[0]} px but the pinhole is "
+                                f"{pinhole.width}x{pinhole.height}: render with render_camera_for(camera)")
+    img = render.astype(np.float32, copy=False)
+    if img.ndim == 2 or dispersion == 0.0:
+        up, vp = remap_maps(camera, pinhole)
+        return bilinear(img, up, vp).astype(np.float32)
+    out = np.empty((camera.height, camera.width, img.shape[2]), dtype=np.float32)
+    for c, s in enumerate(dispersion_scales(dispersion, img.shape[2])):
+        up, vp = remap_maps(camera, pinhole, s)
+        out[..., c] = bilinear(img[..., c], up, vp)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# photometric effects
+# --------------------------------------------------------------------------------------------
+def apply_exposure(image: np.ndarray, exposure_ev: float) -> np.ndarray:
+    """Linear gain of ``2 ** exposure_ev`` (stops)."""
+    return image * np.float32(2.0 ** exposure_ev)
+
+
+def add_glare(image: np.ndarray, camera: CameraModel, sun_dir_cam: np.ndarray, strength: float, *,
+              core_deg: float = 1.5) -> np.ndarray:
+    """Add veiling glare around the sun: ``strength / (1 + (angle / core_deg)**2)`` (linear units).
+
+    ``sun_dir_cam`` is the sun's unit direction in the camera frame (x right, y down, z forward);
+    the halo depends only on the angle from the sun, so a sun just outside the frame still
+    brightens the near edge.  Works on the distorted image (uses ``camera.unproject``).
+    """
+    if strength <= 0:
+        return image
+    d = camera.unproject(*camera.pixel_grid())
+    s = np.asarray(sun_dir_cam, dtype=np.float64)
+    s = s / np.linalg.norm(s)
+    ang = np.degrees(np.arccos(np.clip(d @ s, -1.0, 1.0)))
+    halo = (strength / (1.0 + (ang / core_deg) ** 2)).astype(np.float32)
+    halo = np.nan_to_num(halo)
+    return image + (halo[..., None] if image.ndim == 3 else halo)
+
+
+def apply_vignetting(image: np.ndarray, camera: CameraModel, amount: float) -> np.ndarray:
+    """Multiply by ``1 - amount * (r / r_corner)**2`` (r: pixel distance from the principal point)."""
+    if amount <= 0:
+        return image
+    u, v = camera.pixel_grid()
+    r2 = (u - camera.cx) ** 2 + (v - camera.cy) ** 2
+    r2c = max((camera.width / 2.0) ** 2 + (camera.height / 2.0) ** 2, 1.0)
+    g = (1.0 - amount * r2 / r2c).astype(np.float32)
+    return image * (g[..., None] if image.ndim == 3 else g)
+
+
+def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Separable Gaussian blur (sigma in pixels), edges repeated."""
+    if sigma_px <= 0:
+        return image
+    r = max(1, int(math.ceil(3.0 * sigma_px)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma_px) ** 2)
+    k = (k / k.sum()).astype(np.float32)
+    out = image.astype(np.float32)
+    for axis in (0, 1):
+        pad = [(0, 0)] * out.ndim
+        pad[axis] = (r, r)
+        p = np.pad(out, pad, mode="edge")
+        acc = np.zeros_like(out)
+        n = out.shape[axis]
+        for i, w in enumerate(k):
+            sl = [slice(None)] * out.ndim
+            sl[axis] = slice(i, i + n)
+            acc += w * p[tuple(sl)]
+        out = acc
+    return out
+
+
+def add_sensor_noise(image: np.ndarray, rng: np.random.Generator, *, full_well_e: float,
+                     read_noise_e: float) -> np.ndarray:
+    """Shot and read noise on a linear image (1.0 = full well), clipped to [0, 1].
+
+    Signal ``s`` (electrons ``s * full_well_e``) becomes ``(Poisson(s * fw) + N(0, read_noise_e)) / fw``:
+    mean ``s`` and variance ``s / fw + (read_noise_e / fw)**2`` before clipping.
+    ``full_well_e = 0`` returns the image clipped, without noise.
+    """
+    img = np.clip(image, 0.0, None)
+    if full_well_e <= 0:
+        return np.clip(img, 0.0, 1.0).astype(np.float32)
+    electrons = rng.poisson(np.minimum(img, 4.0).astype(np.float64) * full_well_e)
+    if read_noise_e > 0:
+        electrons = electrons + rng.normal(0.0, read_noise_e, size=img.shape)
+    return np.clip(electrons / full_well_e, 0.0, 1.0).astype(np.float32)
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """sRGB transfer function on linear values in [0, 1]."""
+    x = np.clip(linear, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: np.ndarray) -> np.ndarray:
+    """Inverse sRGB transfer function (encoded [0, 1] -> linear)."""
+    x = np.clip(encoded, 0.0, 1.0)
+    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
+
+
+def quantise(encoded: np.ndarray, bit_depth: int = 8) -> np.ndarray:
+    """Round [0, 1] values to uint8 or uint16."""
+    top = (1 << bit_depth) - 1
+    dtype = np.uint8 if bit_depth == 8 else np.uint16
+    return np.round(np.clip(encoded, 0.0, 1.0) * top).astype(dtype)
+
+
+def degrade_frame(render_linear: np.ndarray, pinhole: CameraModel, camera: CameraModel, deg: Degradation,
+                  rng: np.random.Generator, *, sun_dir_cam: np.ndarray | None = None) -> np.ndarray:
+    """A frame as the NavCam records it, from a linear pinhole render (see the module docstring).
+
+    render_linear : (H_p, W_p, 3) float, linear light, of ``pinhole`` (from :func:`render_camera_for`)
+    camera : the calibrated camera (its distortion is applied)
+    sun_dir_cam : the sun's unit direction in the camera frame, for glare
+    Returns (H, W, 3) uint8 or uint16, sRGB-encoded (binary looks are written linear, 0 or max).
+    """
+    s = deg.sensor
+    img = render_linear.astype(np.float32)
+    if deg.binary:
+        img = distort_image(img, pinhole, camera)
+        return quantise((img > 0.5).astype(np.float32), s.bit_depth)
+    img = apply_exposure(img, s.exposure_ev)
+    img = distort_image(img, pinhole, camera, dispersion=deg.lens.dispersion)
+    if sun_dir_cam is not None:
+        img = add_glare(img, camera, sun_dir_cam, s.glare)
+    img = apply_vignetting(img, camera, deg.lens.vignetting)
+    img = gaussian_blur(img, deg.lens.blur_px)
+    img = add_sensor_noise(img, rng, full_well_e=s.full_well_e, read_noise_e=s.read_noise_e)
+    return quantise(srgb_encode(img), s.bit_depth)

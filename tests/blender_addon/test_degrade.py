@@ -1,0 +1,154 @@
+"""Degradations: noise statistics, distortion against board.camera, dispersion, seeds, parameters."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blender_addon.core.degrade import (
+    Degradation, PRESETS, add_glare, add_sensor_noise, degrade_frame, distort_image, gaussian_blur,
+    get_degradation, render_camera_for, srgb_decode, srgb_encode,
+)
+from board.camera import CameraModel
+from board.errors import InvalidInputError
+
+CAM = CameraModel(160, 120, 150.0, 152.0, 81.3, 58.2, k1=-0.15, k2=0.03, p1=5e-4, p2=-4e-4, k3=0.0)
+
+
+def _dot_render(pinhole: CameraModel, dirs: np.ndarray, sigma: float = 1.2) -> np.ndarray:
+    """A pinhole image of Gaussian dots at the given camera-frame directions (analytic projection)."""
+    u, v = pinhole.pixel_grid()
+    img = np.zeros((pinhole.height, pinhole.width), np.float32)
+    x = dirs[:, 0] / dirs[:, 2] * pinhole.fx + pinhole.cx
+    y = dirs[:, 1] / dirs[:, 2] * pinhole.fy + pinhole.cy
+    for xi, yi in zip(x, y):
+        img += np.exp(-((u - xi) ** 2 + (v - yi) ** 2) / (2 * sigma ** 2)).astype(np.float32)
+    return img
+
+
+def _centroids(img: np.ndarray, guesses_u, guesses_v, r: int = 5):
+    out = []
+    for gu, gv in zip(guesses_u, guesses_v):
+        u0, v0 = int(round(gu)), int(round(gv))
+        win = img[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1].astype(float)
+        vv, uu = np.mgrid[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1]
+        out.append(((win * uu).sum() / win.sum(), (win * vv).sum() / win.sum()))
+    return np.array(out)
+
+
+def test_remapped_dots_land_where_camera_projects_them():
+    pinhole = render_camera_for(CAM)
+    # directions spread over the whole distorted image, corners included
+    us, vs = np.meshgrid(np.linspace(12, CAM.width - 13, 6), np.linspace(12, CAM.height - 13, 5))
+    dirs = CAM.unproject(us.ravel(), vs.ravel())
+    out = distort_image(_dot_render(pinhole, dirs), pinhole, CAM)
+    assert out.shape == (CAM.height, CAM.width)
+    u_true, v_true = CAM.project(dirs)
+    c = _centroids(out, u_true, v_true)
+    err = np.hypot(c[:, 0] - u_true, c[:, 1] - v_true)
+    assert err.max() < 0.1, err
+
+
+def test_render_camera_holds_every_ray():
+    pinhole = render_camera_for(CAM, dispersion=0.01)
+    u, v = CAM.pixel_grid()
+    d = CAM.unproject(u, v)
+    for s in (0.99, 1.01):
+        x = d[..., 0] / d[..., 2] * s * pinhole.fx + pinhole.cx
+        y = d[..., 1] / d[..., 2] * s * pinhole.fy + pinhole.cy
+        assert x.min() >= 1 and x.max() <= pinhole.width - 2
+        assert y.min() >= 1 and y.max() <= pinhole.height - 2
+    # barrel distortion sees more than the undistorted pinhole of the same size
+    assert pinhole.width > CAM.width and pinhole.height > CAM.height
+
+
+def test_dispersion_magnifies_red_and_shrinks_blue():
+    pinhole = render_camera_for(CAM, dispersion=0.01)
+    d0 = CAM.unproject(np.array([150.0]), np.array([100.0]))      # off-centre point
+    img = np.repeat(_dot_render(pinhole, d0)[..., None], 3, axis=2)
+    out = distort_image(img, pinhole, CAM, dispersion=0.01)
+    cs = [_centroids(out[..., c], [150.0], [100.0])[0] for c in range(3)]
+    rg = np.hypot(cs[1][0] - CAM.cx, cs[1][1] - CAM.cy)
+    rr = np.hypot(cs[0][0] - CAM.cx, cs[0][1] - CAM.cy)
+    rb = np.hypot(cs[2][0] - CAM.cx, cs[2][1] - CAM.cy)
+    # red samples the ray magnified by 1.01, so the dot appears closer to the centre in red
+    assert rr < rg < rb
+    assert np.hypot(cs[1][0] - 150.0, cs[1][1] - 100.0) < 0.1   # green is the calibrated channel
+
+
+@pytest.mark.parametrize("signal", [0.05, 0.3, 0.7])
+def test_noise_mean_and_variance_follow_shot_plus_read(signal):
+    fw, rn = 5000.0, 12.0
+    img = np.full((400, 500), signal, np.float32)
+    out = add_sensor_noise(img, np.random.default_rng(1), full_well_e=fw, read_noise_e=rn)
+    expected_var = signal / fw + (rn / fw) ** 2
+    assert out.mean() == pytest.approx(signal, abs=4 * np.sqrt(expected_var / img.size))
+    # sample variance of 200k draws: relative standard error ~ sqrt(2/n) = 0.3 %
+    assert out.var() == pytest.approx(expected_var, rel=0.02)
+
+
+def test_noise_clips_at_full_well_and_seeds_reproduce():
+    img = np.full((50, 50), 3.0, np.float32)
+    out = add_sensor_noise(img, np.random.default_rng(0), full_well_e=1000, read_noise_e=5)
+    assert out.max() == 1.0 and out.min() > 0.9
+    r = np.random.default_rng(0).random((40, 60, 3)).astype(np.float32)
+    deg = PRESETS["distorted"]
+    pin = render_camera_for(CAM, dispersion=deg.lens.dispersion)
+    big = np.random.default_rng(5).random((pin.height, pin.width, 3)).astype(np.float32)
+    a = degrade_frame(big, pin, CAM, deg, np.random.default_rng(42))
+    b = degrade_frame(big, pin, CAM, deg, np.random.default_rng(42))
+    c = degrade_frame(big, pin, CAM, deg, np.random.default_rng(43))
+    assert a.dtype == np.uint8 and a.shape == (CAM.height, CAM.width, 3)
+    assert a.tobytes() == b.tobytes()
+    assert a.tobytes() != c.tobytes()
+    assert r.shape == (40, 60, 3)
+
+
+def test_exposure_saturates_and_binary_stays_binary():
+    pin = render_camera_for(CameraModel.from_fov(64, 48, 60))
+    cam = CameraModel.from_fov(64, 48, 60)
+    flat = np.full((pin.height, pin.width, 3), 0.3, np.float32)
+    over = Degradation.from_dict({"sensor": {"exposure_ev": 2.0}})
+    out = degrade_frame(flat, pin, cam, over, np.random.default_rng(0))
+    assert (out == 255).all()                    # 0.3 * 4 clips
+    under = degrade_frame(flat, pin, cam, Degradation.from_dict({"sensor": {"exposure_ev": -1.0}}),
+                          np.random.default_rng(0))
+    assert srgb_decode(under / 255.0).mean() == pytest.approx(0.15, abs=0.003)
+    half = flat.copy()
+    half[: pin.height // 2] = 0.0
+    half[pin.height // 2:] = 1.0
+    b = degrade_frame(half, pin, cam, get_degradation("binary"), np.random.default_rng(0))
+    assert set(np.unique(b)) == {0, 255}
+
+
+def test_srgb_round_trip_and_blur_preserves_mean():
+    x = np.linspace(0, 1, 1001)
+    np.testing.assert_allclose(srgb_decode(srgb_encode(x)), x, atol=1e-12)
+    img = np.random.default_rng(3).random((60, 80)).astype(np.float32)
+    bl = gaussian_blur(img, 1.5)
+    assert bl.std() < img.std()
+    assert bl.mean() == pytest.approx(img.mean(), abs=0.01)
+
+
+def test_glare_peaks_towards_the_sun():
+    cam = CameraModel.from_fov(80, 60, 60)
+    img = np.zeros((60, 80), np.float32)
+    sun = np.array([0.8, 0.0, 1.0])        # to the right, outside the 60 deg field (38.7 deg off axis)
+    g = add_glare(img, cam, sun, 1.0)
+    assert g[:, -1].mean() > g[:, 0].mean() * 2
+    assert np.argmax(g[30]) == 79
+
+
+def test_parameter_errors_name_the_fix():
+    with pytest.raises(InvalidInputError, match="unknown setting 'k9'"):
+        Degradation.from_dict({"lens": {"k9": 1}})
+    with pytest.raises(InvalidInputError, match="dust optical depth"):
+        Degradation.from_dict({"sky": {"dust_tau": -1}})
+    with pytest.raises(InvalidInputError, match="expected a number"):
+        Degradation.from_dict({"sensor": {"exposure_ev": "lots"}})
+    with pytest.raises(InvalidInputError, match="use one of"):
+        get_degradation("foggy")
+    with pytest.raises(InvalidInputError, match="not invertible"):
+        render_camera_for(CameraModel.from_fov(100, 100, 120, k1=-0.9))
+    d = Degradation.from_dict({"rocks": {"near_count": 3, "near_distance_m": [1.5, 3]}}, base=PRESETS["realistic"])
+    assert d.rocks.near_count == 3 and d.rocks.near_distance_m == (1.5, 3.0)
+    assert d.rocks.density_per_m2 == PRESETS["realistic"].rocks.density_per_m2
