@@ -1,0 +1,119 @@
+"""`skyloc dem ...`: synthesise procedural DEMs, describe DEMs, prepare multi-resolution terrains."""
+from __future__ import annotations
+
+import json
+import logging
+
+import click
+
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+
+def _parse_xy(value: str, name: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise InvalidInputError(f"{name} must be X,Y (two numbers separated by a comma), got {value!r}") from None
+    return x, y
+
+
+def _crs_name(wkt: str) -> str:
+    from osgeo import osr
+
+    srs = osr.SpatialReference()
+    srs.ImportFromWkt(wkt)
+    return srs.GetName() or "unnamed CRS"
+
+
+@click.group("dem")
+def dem_group() -> None:
+    """DEMs: synthesise procedural terrain, inspect a DEM, prepare a multi-resolution terrain."""
+
+
+@dem_group.command("synth")
+@click.option("--preset", type=click.Choice(["mars", "europa", "moon"]), default="mars", show_default=True,
+              help="Terrain type.")
+@click.option("--size", "size_m", type=float, default=20000.0, show_default=True, help="Side length (m).")
+@click.option("--res", "res_m", type=float, default=5.0, show_default=True, help="Cell size (m).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same file).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="Output GeoTIFF.")
+def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str) -> None:
+    """Synthesise a procedural DEM (GeoTIFF on the body's sphere, centred on 0,0)."""
+    from blender_addon.terrain.dem import dem_info
+    from blender_addon.terrain.procedural import synthesize
+
+    out = synthesize(preset, size_m=size_m, res_m=res_m, seed=seed, out_path=out_path)
+    info = dem_info(out)
+    b = info.bounds
+    click.echo(
+        f"wrote {out}: {preset} seed {seed}, {info.size[0]} x {info.size[1]} cells at {info.cell_m:g} m, "
+        f"x {b[0]:g}..{b[2]:g}, y {b[1]:g}..{b[3]:g} m in CRS {_crs_name(info.crs_wkt)!r} "
+        f"(body {info.body.name}, R = {info.body.radius_m:.0f} m)"
+    )
+
+
+@dem_group.command("info")
+@click.argument("dem")
+@click.option("--body", default=None, help="Body name (earth, mars, moon, europa) or radius in metres.")
+@click.option("--assume-metric", is_flag=True, help="A raster without CRS has metric coordinates.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def info_cmd(dem: str, body: str | None, assume_metric: bool, as_json: bool) -> None:
+    """Describe a DEM (file or procedural:PRESET:SEED) in its metric working CRS, without reading it whole."""
+    from blender_addon.terrain.dem import dem_info, resolve_dem
+
+    info = dem_info(resolve_dem(dem), body=body, assume_metric=assume_metric)
+    if as_json:
+        click.echo(json.dumps(info.to_json_dict(), indent=2))
+        return
+    b = info.bounds
+    click.echo(f"{info.path} ({info.driver}, {info.dtype})")
+    click.echo(f"  body        {info.body.name} (R = {info.body.radius_m:.0f} m)")
+    click.echo(f"  source CRS  {'geographic (degrees), reprojected' if info.is_geographic else 'projected, metres'}")
+    click.echo(f"  working CRS {_crs_name(info.crs_wkt)}")
+    click.echo(f"  grid        {info.size[0]} x {info.size[1]} cells of {info.cell_m:g} m")
+    click.echo(f"  bounds      x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m")
+    click.echo(f"  nodata      ~{info.nodata_fraction:.2%}")
+    click.echo(f"  sha256      {info.sha256}")
+
+
+@dem_group.command("prepare")
+@click.option("--dem", "dem", required=True, help="DEM file or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
+@click.option("--center", required=True, help="Site X,Y in the DEM's own CRS (lon,lat for a DEM in degrees) unless --crs.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output folder.")
+@click.option("--crs", default=None, help="CRS of --center (e.g. EPSG:4326, a WKT or PROJ string).")
+@click.option("--grid-size", "grid_size", type=float, default=1000.0, show_default=True,
+              help="Side of the square search grid around the centre (m).")
+@click.option("--azimuth-step", type=float, default=1.0, show_default=True, help="Skyline azimuth resolution (deg).")
+@click.option("--max-radius", type=float, default=None, help="Keep terrain up to this far beyond the grid (m); default: the DEM's edge.")
+@click.option("--body", default=None, help="Body name (earth, mars, moon, europa) or radius in metres.")
+@click.option("--assume-metric", is_flag=True, help="A raster without CRS has metric coordinates.")
+def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size: float, azimuth_step: float,
+                max_radius: float | None, body: str | None, assume_metric: bool) -> None:
+    """Build the multi-resolution terrain (nested max-downsampled GeoTIFF levels + VRT + terrain.json)."""
+    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
+    from blender_addon.terrain.multires import build_multires
+
+    if grid_size < 0:
+        raise InvalidInputError(f"--grid-size must be >= 0 m, got {grid_size}")
+    path = resolve_dem(dem)
+    cx, cy = _parse_xy(center, "--center")
+    site = to_metric_xy(cx, cy, dem_path=path, crs=crs, body=body, assume_metric=assume_metric)
+    terrain = build_multires(
+        path, site, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
+        max_radius_m=max_radius, assume_metric=assume_metric, progress=True,
+    )
+    click.echo(f"terrain for {path} around ({site[0]:.2f}, {site[1]:.2f}) m "
+               f"in CRS {_crs_name(terrain.crs_wkt)!r} (body {terrain.body.name}) -> {out_dir}")
+    click.echo("| level | cell (m) | cells | x range (m) | y range (m) | used beyond (m) |")
+    click.echo("|---|---|---|---|---|---|")
+    for k, (lvl, inner) in enumerate(zip(terrain.levels, terrain.meta["inner_distance_m"])):
+        b = lvl.bounds()
+        click.echo(f"| {k} | {lvl.cell_m:g} | {lvl.array.shape[1]} x {lvl.array.shape[0]} | "
+                   f"{b[0]:.1f}..{b[2]:.1f} | {b[1]:.1f}..{b[3]:.1f} | {inner:.0f} |")
+
+
+def register(group: click.Group) -> None:
+    """Add the `dem` group to the root `skyloc` group."""
+    group.add_command(dem_group)
