@@ -1,0 +1,352 @@
+"""Locate a rover from its skyline: the public matching API.
+
+``locate(db, skyline, mode=...)`` runs the exhaustive FFT search over the part of the database
+the mode allows, refines the best candidates on the sphere (position between grid nodes,
+heading, pitch, roll) and attaches a calibrated confidence.  Coordinates are metres in the
+database's CRS; angles are degrees (azimuths clockwise from grid north).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from board.conventions import wrap_deg180
+from board.errors import InvalidInputError
+from board.match.fft_score import heading_deg, prepare_query, score_block
+from board.match.search import Region, ScoreMap, fill_missing, search
+from board.pose.confidence import Thresholds, effective_samples, ellipse_95, map_likelihood
+from board.pose.refine import PARAMS, LocalDB, Refined, refine
+from board.pose.sphere import enu_az_el, harmonic_to_tilt_matrix, level_skyline
+from board.skydb import SkyDB, Tile
+from board.skyline import Skyline
+
+log = logging.getLogger(__name__)
+
+MODES = ("lost", "window", "heading")
+#: nominal query noise (degrees) used to weigh an IMU tilt prior against the skyline
+NOMINAL_NOISE_DEG = 0.1
+#: a coarse tilt estimate above this (degrees) triggers a second search with the levelled query
+RELEVEL_DEG = 1.5
+#: candidates whose coarse score exceeds this factor times the best are not refined
+CANDIDATE_FACTOR = 3.0
+
+
+@dataclass
+class Fix:
+    """A pose estimate with its confidence (metres in the database CRS, degrees).
+
+    status is "ok", "ambiguous" or "failed"; reason says why when it is not "ok".
+    cov_xy : 2x2 position covariance (m^2); ellipse95_m : (semi-major, semi-minor, azimuth of major axis).
+    """
+
+    x: float
+    y: float
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    sigma_x_m: float
+    sigma_y_m: float
+    sigma_heading_deg: float
+    cov_xy: np.ndarray
+    status: str
+    reason: str
+    elapsed_s: float
+    mode: str = "lost"
+    sigma_pitch_deg: float = float("nan")
+    sigma_roll_deg: float = float("nan")
+    ellipse95_m: tuple[float, float, float] = (float("nan"),) * 3
+    offset_deg: float = 0.0
+    rms_residual_deg: float = float("nan")
+    noise_deg: float = float("nan")
+    n_eff: float = float("nan")
+    ambiguity_ratio: float = float("nan")
+    far_mass: float = float("nan")
+    coverage_deg: float = 0.0
+    n_scored: int = 0
+    n_pruned: int = 0
+    grid_row: float = float("nan")
+    grid_col: float = float("nan")
+    # for pictures (not serialised)
+    score_map: ScoreMap | None = field(default=None, repr=False)
+    query_theta_deg: np.ndarray | None = field(default=None, repr=False)
+    query_el_deg: np.ndarray | None = field(default=None, repr=False)
+    db_skyline_deg: np.ndarray | None = field(default=None, repr=False)
+
+    def to_json_dict(self) -> dict:
+        """JSON-able dict: the keys of the issue plus the confidence details."""
+        def f(v):
+            v = float(v)
+            return None if not math.isfinite(v) else round(v, 6)
+
+        return {
+            "x": f(self.x), "y": f(self.y), "heading_deg": f(self.heading_deg),
+            "pitch_deg": f(self.pitch_deg), "roll_deg": f(self.roll_deg),
+            "sigma_x_m": f(self.sigma_x_m), "sigma_y_m": f(self.sigma_y_m),
+            "sigma_heading_deg": f(self.sigma_heading_deg),
+            "sigma_pitch_deg": f(self.sigma_pitch_deg), "sigma_roll_deg": f(self.sigma_roll_deg),
+            "cov_xy": [[f(v) for v in row] for row in np.asarray(self.cov_xy)],
+            "ellipse95_m": {"semi_major": f(self.ellipse95_m[0]), "semi_minor": f(self.ellipse95_m[1]),
+                            "major_azimuth_deg": f(self.ellipse95_m[2])},
+            "status": self.status, "reason": self.reason, "elapsed_s": f(self.elapsed_s), "mode": self.mode,
+            "offset_deg": f(self.offset_deg), "rms_residual_deg": f(self.rms_residual_deg),
+            "noise_deg": f(self.noise_deg), "n_eff": f(self.n_eff),
+            "ambiguity_ratio": f(self.ambiguity_ratio), "far_mass": f(self.far_mass),
+            "coverage_deg": f(self.coverage_deg), "positions_scored": self.n_scored,
+            "positions_pruned": self.n_pruned, "grid_row": f(self.grid_row), "grid_col": f(self.grid_col),
+        }
+
+
+def _validate(db: SkyDB, sky: Skyline) -> None:
+    if not sky.seen.any():
+        raise InvalidInputError("the query skyline has no seen sample (all null/NaN): nothing to match; "
+                                "check the extraction")
+    if sky.n != db.meta.n_azimuth or not math.isclose(sky.azimuth_step_deg, db.meta.azimuth_step_deg,
+                                                       rel_tol=0, abs_tol=1e-9):
+        raise InvalidInputError(
+            f"the skyline is sampled every {sky.azimuth_step_deg:g} degrees ({sky.n} samples) but the database "
+            f"{db.path} every {db.meta.azimuth_step_deg:g} ({db.meta.n_azimuth}): resample the skyline to the "
+            "database's azimuth step")
+    if sky.seen.sum() < 10:
+        raise InvalidInputError(f"the query skyline has only {int(sky.seen.sum())} seen samples; at least 10 are "
+                                "needed to locate (a single frame of 65 degrees gives 65 at 1 degree)")
+    if not db.complete:
+        log.warning("database %s is not complete (%d of %d tiles): unrendered positions are skipped",
+                    db.path, db.n_tiles_done(), len(db.tiles))
+
+
+def _local_db(db: SkyDB, row: int, col: int, half: int = 2) -> LocalDB:
+    g = db.grid
+    r0, c0 = max(row - half, 0), max(col - half, 0)
+    r1, c1 = min(row + half + 1, g.ny), min(col + half + 1, g.nx)
+    el = db.read_tile(Tile(-1, -1, r0, c0, r1 - r0, c1 - c0)).astype(np.float64)
+    flat = el.reshape(-1, el.shape[2])
+    fill_missing(flat)
+    if not np.isfinite(flat).all():
+        # a neighbour without a skyline: replace by the candidate's own (keeps the window usable)
+        own = flat[(row - r0) * (c1 - c0) + (col - c0)]
+        bad = ~np.isfinite(flat).all(axis=1)
+        flat[bad] = own
+    return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg)
+
+
+def _candidates(smap: ScoreMap, k: int, sep: int) -> list[tuple[int, int]]:
+    """Up to ``k`` best positions at least ``sep`` nodes apart (non-maximum suppression), grid (row, col)."""
+    s = smap.score
+    order = np.argsort(s, axis=None)[: max(200, 50 * k)]
+    out: list[tuple[int, int]] = []
+    for f in order:
+        if not np.isfinite(s.flat[f]):
+            break
+        r, c = divmod(int(f), s.shape[1])
+        if all(abs(r - a) >= sep or abs(c - b) >= sep for a, b in out):
+            out.append((r, c))
+            if len(out) == k:
+                break
+    return [(r + smap.region.row0, c + smap.region.col0) for r, c in out]
+
+
+def _coarse_init(db: SkyDB, q, row: int, col: int, allowed, level: tuple[float, float], query_start: float):
+    """Heading and tilt at a grid node from the coarse model (fitted harmonic -> pitch, roll)."""
+    sky = db.read_tile(Tile(-1, -1, row, col, 1, 1)).reshape(1, -1).astype(np.float64)
+    fill_missing(sky)
+    blk = score_block(q, sky)
+    sc = blk.scores[0] + (0.0 if allowed is None else np.where(allowed, 0.0, np.inf))
+    a = int(np.argmin(sc))
+    pitch, roll = level
+    if q.n_params == 3:
+        coef = q.minv @ blk.b[:, 0, a]
+        dp, dr = harmonic_to_tilt_matrix() @ coef[1:]
+        pitch, roll = pitch + dp, roll + dr
+    h = float(heading_deg(a, n=q.n, db_start_deg=db.meta.azimuth_start_deg, query_start_deg=query_start))
+    return {"row": float(row), "col": float(col), "heading": h, "pitch": float(pitch), "roll": float(roll)}
+
+
+def _allowed_shifts(n: int, db_start: float, query_start: float, prior: float, window: float) -> np.ndarray:
+    h = heading_deg(np.arange(n), n=n, db_start_deg=db_start, query_start_deg=query_start)
+    return np.abs(wrap_deg180(h - prior)) <= window + 1e-9
+
+
+def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost",
+           prior_xy: tuple[float, float] | None = None, radius_m: float | None = None,
+           heading_prior_deg: float | None = None, heading_window_deg: float = 10.0,
+           tilt_prior: tuple[float, float, float] | None = None, model: str = "tilt", prune: bool = True,
+           n_candidates: int = 5, thresholds: Thresholds | None = None, progress=None) -> Fix:
+    """Estimate position, heading and tilt from a query skyline.
+
+    Parameters
+    ----------
+    db : SkyDB or path of a skyline database (Zarr)
+    skyline : query skyline, azimuths relative to the heading, degrees; NaN where unseen
+    mode : "lost" (whole grid), "window" (within ``radius_m`` of ``prior_xy``, default 30 m),
+        "heading" (position ``prior_xy`` given; heading within ``heading_window_deg`` of ``heading_prior_deg``)
+    prior_xy : (x, y) metres in the database CRS
+    heading_prior_deg : heading prior (degrees clockwise from grid north); restricts the heading in
+        "heading" mode, and in the other modes too when given
+    tilt_prior : (pitch, roll, sigma) degrees from an IMU
+    model : coarse score, "tilt" (invariant to small pitch/roll) or "offset" (the report's metric)
+    prune : exact Parseval pruning for full panoramas (the result is identical either way)
+    """
+    t0 = time.perf_counter()
+    if not isinstance(db, SkyDB):
+        db = SkyDB.open(db)
+    if mode not in MODES:
+        raise InvalidInputError(f"unknown mode {mode!r}: use one of {', '.join(MODES)}")
+    _validate(db, skyline)
+    th = thresholds or Thresholds()
+    g = db.grid
+    step = abs(g.geotransform[1])
+    n = db.meta.n_azimuth
+    q0 = skyline.azimuth_start_deg
+    if mode in ("window", "heading") and prior_xy is None:
+        raise InvalidInputError(f"mode {mode!r} needs a prior position: pass --prior X,Y")
+    if mode == "heading" and heading_prior_deg is None:
+        raise InvalidInputError("mode 'heading' needs --heading-prior DEG")
+    if tilt_prior is not None and not (len(tilt_prior) == 3 and tilt_prior[2] > 0):
+        raise InvalidInputError("tilt prior must be (pitch_deg, roll_deg, sigma_deg) with sigma > 0")
+
+    allowed = None
+    if heading_prior_deg is not None:
+        allowed = _allowed_shifts(n, db.meta.azimuth_start_deg, q0, heading_prior_deg, heading_window_deg)
+    if mode == "lost":
+        region = Region.whole(g)
+    elif mode == "window":
+        region = Region.disc(g, prior_xy, 30.0 if radius_m is None else radius_m)
+    else:
+        region = Region.disc(g, prior_xy, step)
+
+    theta_all = skyline.azimuths_deg()
+    seen = skyline.seen
+    theta, el = theta_all[seen], skyline.elevation_deg[seen]
+    level = (0.0, 0.0) if tilt_prior is None else (float(tilt_prior[0]), float(tilt_prior[1]))
+    ridge = 0.0 if tilt_prior is None else (NOMINAL_NOISE_DEG / tilt_prior[2]) ** 2
+
+    def coarse(level):
+        e = skyline.elevation_deg if level == (0.0, 0.0) else level_skyline(skyline.elevation_deg, theta_all, *level)
+        q = prepare_query(e, azimuth_start_deg=q0, model=model, ridge=ridge)
+        if mode == "heading":
+            return q, None
+        return q, search(db, q, region=region, allowed_shifts=allowed, prune=prune, progress=progress)
+
+    def best_refined(q, smap, level):
+        if mode == "heading":
+            fi, fj = g.ij(*prior_xy)
+            local = _local_db(db, int(round(fi)), int(round(fj)))
+            sky = local.skyline_at(fi, fj)[None]
+            blk = score_block(q, sky)
+            sc = blk.scores[0] + np.where(allowed, 0.0, np.inf)
+            a = int(np.argmin(sc))
+            pitch, roll = level
+            if q.n_params == 3:
+                dp, dr = harmonic_to_tilt_matrix() @ (q.minv @ blk.b[:, 0, a])[1:]
+                pitch, roll = pitch + dp, roll + dr
+            init = {"row": fi, "col": fj, "pitch": pitch, "roll": roll,
+                    "heading": float(heading_deg(a, n=n, db_start_deg=db.meta.azimuth_start_deg, query_start_deg=q0))}
+            free = ("heading", "pitch", "roll") if model == "tilt" else ("heading",)
+            return refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
+                          bounds={"heading": (heading_prior_deg - heading_window_deg - 1,
+                                              heading_prior_deg + heading_window_deg + 1)}), local
+        best = None
+        cands = _candidates(smap, n_candidates, sep=3)
+        s0 = smap.score[cands[0][0] - smap.region.row0, cands[0][1] - smap.region.col0]
+        for r, c in cands:
+            if smap.score[r - smap.region.row0, c - smap.region.col0] > CANDIDATE_FACTOR * s0 + 1e-12:
+                break
+            init = _coarse_init(db, q, r, c, allowed, level, q0)
+            local = _local_db(db, r, c)
+            free = PARAMS if model == "tilt" else ("row", "col", "heading")
+            bounds = {"row": (max(r - 1.5, 0), min(r + 1.5, g.ny - 1)), "col": (max(c - 1.5, 0), min(c + 1.5, g.nx - 1))}
+            ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
+                         bounds=bounds)
+            if best is None or ref.cost < best[0].cost:
+                best = (ref, local)
+        return best
+
+    q, smap = coarse(level)
+    ref, local = best_refined(q, smap, level)
+    tilt_est = math.hypot(ref.values["pitch"] - level[0], ref.values["roll"] - level[1])
+    if model == "tilt" and tilt_est > RELEVEL_DEG:
+        # the first-harmonic model is first order: search again with the query levelled by the estimate
+        level2 = (ref.values["pitch"], ref.values["roll"])
+        log.info("tilt %.1f deg: second search with the levelled query", tilt_est)
+        q2, smap2 = coarse(level2)
+        ref2, local2 = best_refined(q2, smap2, level2)
+        if ref2.cost <= ref.cost:
+            q, smap, ref, local = q2, smap2, ref2, local2
+        elif smap2 is not None:
+            smap = smap2
+    return _make_fix(db, skyline, q, smap, ref, local, mode=mode, th=th, t0=t0)
+
+
+def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refined, local: LocalDB, *, mode: str,
+              th: Thresholds, t0: float) -> Fix:
+    g = db.grid
+    step = abs(g.geotransform[1])
+    v = ref.values
+    x, y = g.xy(v["row"], v["col"])
+    n = ref.residual.size
+    k = len(ref.free) + 1
+    s2 = ref.cost / max(n - k, 1)
+    n_eff = effective_samples(ref.residual)
+    infl = max(n / n_eff, 1.0)
+    J = ref.jac
+    info = J.T @ J / (s2 * infl) + (ref.prior_info / s2 if ref.prior_info.size else 0.0)
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        cov = np.full(info.shape, np.inf)
+    idx = {name: i for i, name in enumerate(ref.free)}
+
+    def var(name):
+        return float(cov[idx[name], idx[name]]) if name in idx else 0.0
+
+    cov_xy = np.zeros((2, 2))
+    if "row" in idx:
+        T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)
+        sub = cov[np.ix_([idx["row"], idx["col"]], [idx["row"], idx["col"]])]
+        cov_xy = T @ sub @ T.T
+    rms = math.sqrt(ref.cost / n)
+    status, reason = "ok", ""
+    far_mass, ratio = float("nan"), float("nan")
+    if smap is not None:
+        rr, cc = np.mgrid[smap.region.row0:smap.region.row0 + smap.region.nrows,
+                          smap.region.col0:smap.region.col0 + smap.region.ncols]
+        gx, gy = g.xy(rr, cc)
+        smin = float(np.min(smap.score))
+        s2c = smin / max(q.n_seen - q.n_params, 1) * infl
+        # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp
+        s2c = max(s2c, s2 * infl)
+        lk = map_likelihood(smap.score, gx, gy, best_xy=(float(x), float(y)), s2=s2c,
+                            radius_m=th.ambiguity_radius_steps * step)
+        cov_xy = cov_xy + lk.cov_xy
+        far_mass, ratio = lk.far_mass, lk.ambiguity_ratio
+    sig_x, sig_y = math.sqrt(max(cov_xy[0, 0], 0)), math.sqrt(max(cov_xy[1, 1], 0))
+    if rms > th.max_rms_deg:
+        status, reason = "failed", (f"the best match leaves {rms:.2f} deg RMS residual (> {th.max_rms_deg}): the "
+                                    "skyline does not fit this database (wrong area, or a bad extraction)")
+    elif math.isfinite(far_mass) and far_mass > th.max_far_mass:
+        status, reason = "ambiguous", (f"{far_mass:.0%} of the likelihood lies more than "
+                                       f"{th.ambiguity_radius_steps * step:g} m away (score ratio {ratio:.2f}): "
+                                       "another place fits almost as well")
+    elif max(sig_x, sig_y) > th.max_sigma_steps * step:
+        status, reason = "ambiguous", (f"position poorly constrained (1-sigma {max(sig_x, sig_y):.1f} m "
+                                       f"> {th.max_sigma_steps * step:g} m)")
+    az, _ = enu_az_el(skyline.azimuths_deg(), np.nan_to_num(skyline.elevation_deg), v["heading"], v["pitch"],
+                      v["roll"])
+    return Fix(
+        x=float(x), y=float(y), heading_deg=float(v["heading"]), pitch_deg=float(v["pitch"]), roll_deg=float(v["roll"]),
+        sigma_x_m=sig_x, sigma_y_m=sig_y, sigma_heading_deg=math.sqrt(max(var("heading"), 0)),
+        cov_xy=cov_xy, status=status, reason=reason, elapsed_s=time.perf_counter() - t0, mode=mode,
+        sigma_pitch_deg=math.sqrt(max(var("pitch"), 0)) if "pitch" in idx else float("nan"),
+        sigma_roll_deg=math.sqrt(max(var("roll"), 0)) if "roll" in idx else float("nan"),
+        ellipse95_m=ellipse_95(cov_xy), offset_deg=ref.offset_deg, rms_residual_deg=rms,
+        noise_deg=math.sqrt(s2), n_eff=n_eff, ambiguity_ratio=ratio, far_mass=far_mass,
+        coverage_deg=skyline.coverage_deg, n_scored=0 if smap is None else smap.n_scored,
+        n_pruned=0 if smap is None else smap.n_pruned, grid_row=float(v["row"]), grid_col=float(v["col"]),
+        score_map=smap, query_theta_deg=skyline.azimuths_deg(), query_el_deg=skyline.elevation_deg,
+        db_skyline_deg=local.skyline_at(v["row"], v["col"]),
+    )

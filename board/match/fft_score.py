@@ -1,0 +1,276 @@
+"""Exact skyline scores for every heading at once, by FFT circular correlation.
+
+For a query skyline ``e`` (N samples, relative to the heading; ``w_j = 1`` where seen) and a
+database skyline ``s`` (N samples, absolute azimuths), the score of heading shift ``a`` is the
+least-squares residual of
+
+    e_j = s_(j+a) + mu + alpha cos(theta_j) + beta sin(theta_j) + noise      (j seen)
+
+where ``theta_j`` is the query sample's azimuth relative to the heading.  ``model="offset"``
+keeps only ``mu``: that is the reference report's metric (sum of squared differences after
+removing the mean offset over the seen window).  ``model="tilt"`` adds the first harmonic, the
+first-order effect of a pitch/roll of the mast (``delta_el = -pitch cos(theta) - roll sin(theta)``),
+which makes the score invariant to small tilts.  An optional ridge ``ridge`` penalises
+``ridge * (alpha**2 + beta**2)`` (degrees squared): an IMU prior on the tilt.
+
+Expanding the square gives circular correlations of the database skyline with a handful of
+fixed query vectors (``w e``, ``w``, ``w cos``, ``w sin``): a few real DFTs per position, computed
+row-wise with OpenCV in float64 (CCS packed spectra), never a loop over headings.  A full
+panorama takes a faster path: with ``w = 1`` the model removes DFT bins 0 (and 1), so the score is
+the energy of the remaining bins of the residual (Parseval), one inverse DFT per position.
+
+Units: degrees for elevations, degrees squared for scores.  Shift ``a`` means query sample ``j``
+is compared with database sample ``(j + a) mod N``; the heading is
+``db_start + a * step - query_start`` degrees.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+MODELS = ("offset", "tilt")
+
+
+def dft_rows(x: np.ndarray) -> np.ndarray:
+    """Row-wise real DFT of ``x`` (P, N) as OpenCV CCS-packed float64 (P, N)."""
+    return cv2.dft(np.ascontiguousarray(x, dtype=np.float64), flags=cv2.DFT_ROWS)
+
+
+def idft_rows(ccs: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`dft_rows` (scaled by 1/N): real (P, N) float64."""
+    return cv2.idft(ccs, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+
+
+def _ccs_views(c: np.ndarray):
+    """(re0, re_pairs, im_pairs, re_nyquist or None) views of CCS rows (last axis N)."""
+    n = c.shape[-1]
+    m = (n - 1) // 2
+    re = c[..., 1:2 * m:2]
+    im = c[..., 2:2 * m + 1:2]
+    nyq = c[..., n - 1] if n % 2 == 0 else None
+    return c[..., 0], re, im, nyq
+
+
+def ccs_from_complex(z: np.ndarray, n: int) -> np.ndarray:
+    """Pack an rfft-style spectrum ``z`` (..., n//2+1) into CCS (..., n) float64."""
+    out = np.zeros(z.shape[:-1] + (n,), dtype=np.float64)
+    re0, re, im, nyq = _ccs_views(out)
+    m = (n - 1) // 2
+    re0[...] = z[..., 0].real
+    re[...] = z[..., 1:m + 1].real
+    im[...] = z[..., 1:m + 1].imag
+    if nyq is not None:
+        nyq[...] = z[..., n // 2].real
+    return out
+
+
+def mac_conj(out: np.ndarray, sc: np.ndarray, q: np.ndarray, scale: float = 1.0) -> None:
+    """out += scale * sc * conj(q), with ``sc``/``out`` CCS (P, N) and ``q`` CCS (N,) (in place)."""
+    o0, ore, oim, onyq = _ccs_views(out)
+    s0, sre, sim, snyq = _ccs_views(sc)
+    q0, qre, qim, qnyq = _ccs_views(q)
+    o0 += scale * s0 * q0
+    ore += scale * (sre * qre + sim * qim)
+    oim += scale * (sim * qre - sre * qim)
+    if onyq is not None:
+        onyq += scale * snyq * qnyq
+
+
+def bin_energy(c: np.ndarray, skip: int) -> np.ndarray:
+    """Sum over all N DFT bins except |k| < ``skip`` of |X_k|^2, from CCS rows (Parseval)."""
+    n = c.shape[-1]
+    _, re, im, nyq = _ccs_views(c)
+    m = re.shape[-1]
+    lo = max(skip - 1, 0)
+    e = 2.0 * (re[..., lo:m] ** 2 + im[..., lo:m] ** 2).sum(axis=-1)
+    if nyq is not None and n // 2 >= skip:
+        e = e + nyq ** 2
+    if skip <= 0:
+        e = e + c[..., 0] ** 2
+    return e
+
+
+def bin_magnitudes(c: np.ndarray, skip: int) -> tuple[np.ndarray, np.ndarray]:
+    """|X_k| for k = skip..n//2 and their Parseval multiplicities (2, or 1 for Nyquist)."""
+    n = c.shape[-1]
+    _, re, im, nyq = _ccs_views(c)
+    mags = np.sqrt(re[..., skip - 1:] ** 2 + im[..., skip - 1:] ** 2)
+    mult = np.full(mags.shape[-1], 2.0)
+    if nyq is not None:
+        mags = np.concatenate([mags, np.abs(nyq)[..., None]], axis=-1)
+        mult = np.append(mult, 1.0)
+    return mags, mult
+
+
+@dataclass(frozen=True)
+class QueryModel:
+    """A query skyline prepared for scoring (built once per query by :func:`prepare_query`).
+
+    n : number of azimuth samples; seen : (n,) bool; e : (n,) elevations, degrees, centred on
+    their mean over the seen samples, 0 where unseen; basis : (K, n) nuisance regressors
+    (1, cos theta, sin theta) times the mask; minv : (K, K) inverse of ``basis basis^T + ridge``;
+    model : "offset" or "tilt"; full : every sample seen (fast path).
+    """
+
+    n: int
+    seen: np.ndarray
+    e: np.ndarray
+    theta_deg: np.ndarray
+    basis: np.ndarray
+    minv: np.ndarray
+    model: str
+    ridge: float
+    full: bool
+    # spectra (CCS, float64) of the fixed query vectors
+    spec_we: np.ndarray
+    spec_w: np.ndarray
+    spec_basis: np.ndarray
+    sum_we2: float
+    basis_e: np.ndarray
+
+    @property
+    def n_seen(self) -> int:
+        return int(self.seen.sum())
+
+    @property
+    def n_params(self) -> int:
+        return self.basis.shape[0]
+
+
+def prepare_query(elevation_deg: np.ndarray, *, azimuth_start_deg: float = 0.0, model: str = "tilt",
+                  ridge: float = 0.0) -> QueryModel:
+    """Prepare a query skyline (degrees, NaN = unseen, relative to the heading) for scoring.
+
+    ``model`` is "offset" (the report's metric) or "tilt" (offset + first harmonic);
+    ``ridge`` (degrees^2 per degree^2 of harmonic amplitude) penalises the tilt harmonic.
+    """
+    if model not in MODELS:
+        raise InvalidInputError(f"unknown score model {model!r}: use one of {MODELS}")
+    el = np.asarray(elevation_deg, dtype=np.float64)
+    n = el.size
+    seen = np.isfinite(el)
+    n_seen = int(seen.sum())
+    k = 1 if model == "offset" else 3
+    if n_seen < k + 2:
+        raise InvalidInputError(f"the query skyline has {n_seen} seen samples: at least {k + 2} are needed "
+                                "to fit the offset and tilt; give a skyline with more of the panorama seen")
+    w = seen.astype(np.float64)
+    e = np.where(seen, el - el[seen].mean(), 0.0)
+    theta = azimuth_start_deg + np.arange(n) * 360.0 / n
+    t = np.radians(theta)
+    basis = np.stack([np.ones(n), np.cos(t), np.sin(t)])[:k] * w
+    gram = basis @ basis.T
+    reg = np.zeros((k, k))
+    if k == 3:
+        reg[1, 1] = reg[2, 2] = float(ridge)
+    gram = gram + reg
+    if np.linalg.cond(gram) > 1e12:
+        raise InvalidInputError("the seen part of the query skyline is too short to separate offset and tilt; "
+                                "use --tilt none or give a wider panorama")
+    minv = np.linalg.inv(gram)
+    full = bool(seen.all())
+    return QueryModel(
+        n=n, seen=seen, e=e, theta_deg=theta, basis=basis, minv=minv, model=model, ridge=float(ridge), full=full,
+        spec_we=dft_rows((w * e)[None])[0], spec_w=dft_rows(w[None])[0], spec_basis=dft_rows(basis),
+        sum_we2=float((w * e * e).sum()), basis_e=basis @ e,
+    )
+
+
+@dataclass
+class ScoreBlock:
+    """Scores of a block of P database skylines for every shift: ``scores`` (P, N) degrees^2.
+
+    ``b`` (K, P, N) holds the projections needed to recover the fitted nuisance coefficients
+    at any (position, shift): ``coef = minv @ b[:, p, a]`` = (mu, alpha, beta).
+    """
+
+    scores: np.ndarray
+    b: np.ndarray | None
+
+
+def lower_bound_full(q: QueryModel, sc: np.ndarray) -> np.ndarray:
+    """Heading-free lower bound (degrees^2) of the full-panorama score of each row, from magnitudes.
+
+    For every shift, ``|E_k - w^(ka) S_k| >= | |E_k| - |S_k| |`` bin by bin (Parseval), so
+    ``score(p, a) >= sum_k (|E_k| - |S_k|)^2 / N`` over the bins the model does not absorb.
+    """
+    skip = 1 if q.model == "offset" else 2
+    me, mult = bin_magnitudes(q.spec_we[None], skip)
+    ms, _ = bin_magnitudes(sc, skip)
+    return ((ms - me) ** 2 * mult).sum(axis=-1) / q.n
+
+
+def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.ndarray | None = None) -> ScoreBlock:
+    """Exact scores (degrees^2) of query ``q`` against database skylines ``db`` (P, N) for every shift.
+
+    ``db`` must be finite (fill or drop missing samples first).  ``sc`` may pass the CCS
+    spectrum of the row-centred ``db`` when the caller already has it.
+    """
+    db = np.asarray(db, dtype=np.float64)
+    if db.ndim != 2 or db.shape[1] != q.n:
+        raise InvalidInputError(f"database block has shape {db.shape}, expected (P, {q.n})")
+    s = db - db.mean(axis=1, keepdims=True)  # any per-row offset is absorbed by mu: improves conditioning
+    if sc is None:
+        sc = dft_rows(s)
+    n = q.n
+    if q.full:
+        return _score_full(q, sc, want_b)
+    # partial: quadratic term sum w r^2 and projections b_k = basis_k . r, each one inverse DFT
+    s2c = dft_rows(s * s)
+    acc = np.zeros_like(sc)
+    mac_conj(acc, sc, q.spec_we, -2.0)
+    mac_conj(acc, s2c, q.spec_w, 1.0)
+    quad = idft_rows(acc) + q.sum_we2
+    k = q.n_params
+    b = np.empty((k,) + s.shape)
+    for i in range(k):
+        acc[...] = 0.0
+        mac_conj(acc, sc, q.spec_basis[i], -1.0)
+        b[i] = idft_rows(acc) + q.basis_e[i]
+    scores = quad - np.einsum("ipa,ij,jpa->pa", b, q.minv, b, optimize=True)
+    np.maximum(scores, 0.0, out=scores)
+    del n
+    return ScoreBlock(scores, b if want_b else None)
+
+
+def _score_full(q: QueryModel, sc: np.ndarray, want_b: bool) -> ScoreBlock:
+    """Full panorama: residual energy outside the bins absorbed by the model (0, or 0 and +-1)."""
+    n = q.n
+    skip = 1 if q.model == "offset" else 2
+    ec = q.spec_we[None]
+    acc = np.zeros_like(sc)
+    mac_conj(acc, sc, q.spec_we, 1.0)
+    acc[:, 0] = 0.0
+    if skip == 2:
+        acc[:, 1:3] = 0.0
+    cross = idft_rows(acc)  # (1/N) sum over kept bins conj(E_k) S_k w^(ka)
+    scores = (bin_energy(ec, skip) + bin_energy(sc, skip))[:, None] / n - 2.0 * cross
+    b = None
+    if skip == 2:
+        # first-harmonic residual R_1(a) = E_1 - w^a S_1; the ridge leaves part of its energy
+        e1 = complex(q.spec_we[1], q.spec_we[2])
+        s1 = sc[:, 1] + 1j * sc[:, 2]
+        rot = np.exp(2j * np.pi * np.arange(n) / n)
+        r1 = e1 - s1[:, None] * rot[None, :]
+        leftover = 2.0 / n - 1.0 / (n / 2.0 + q.ridge)
+        scores += np.abs(r1) ** 2 * leftover
+        if want_b:
+            # b_0 = sum r = R_0 = 0 after centring (both sides centred); b_1 + i b_2 = e^(i theta0) conj(R_1)
+            z = np.exp(1j * np.radians(q.theta_deg[0])) * np.conj(r1)
+            b = np.stack([np.zeros(r1.shape), z.real, z.imag])
+    elif want_b:
+        b = np.zeros((1,) + scores.shape)
+    np.maximum(scores, 0.0, out=scores)
+    return ScoreBlock(scores, b)
+
+
+def heading_deg(shift: np.ndarray | int, *, n: int, db_start_deg: float, query_start_deg: float):
+    """Heading (degrees, wrapped to [0, 360)) of shift ``a``: db_start + a * 360/n - query_start."""
+    return np.mod(db_start_deg + np.asarray(shift) * 360.0 / n - query_start_deg, 360.0)

@@ -1,0 +1,185 @@
+"""Exhaustive search of a skyline database, streamed tile by tile, with exact pruning.
+
+The search evaluates :func:`board.match.fft_score.score_block` for every position of a region of
+the grid and keeps, per position, the best score over the allowed headings and that heading.
+Memory is bounded by one database tile plus the (region-sized) score map: the database is never
+loaded whole.
+
+Pruning (full panoramas only) is exact: the Parseval bound of
+:func:`board.match.fft_score.lower_bound_full` is a lower bound of the score at every heading, so
+a position whose bound exceeds ``prune_factor`` times the best score found so far can never be the
+argmin, nor within that factor of it.  Such positions keep their bound (``exact`` False), which
+only ever makes the confidence analysis more cautious.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from board.errors import InvalidInputError, NoDataError
+from board.match.fft_score import QueryModel, dft_rows, lower_bound_full, score_block
+from board.skydb import GridSpec, SkyDB, Tile
+
+log = logging.getLogger(__name__)
+
+#: positions are scored in blocks of at most this many skylines (bounds the working memory)
+BLOCK = 1024
+#: a database skyline with more missing samples than this fraction is excluded from the search
+MAX_MISSING_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class Region:
+    """Grid window ``rows row0:row0+nrows, cols col0:col0+ncols`` and an optional (nrows, ncols) mask."""
+
+    row0: int
+    col0: int
+    nrows: int
+    ncols: int
+    mask: np.ndarray | None = None
+
+    @classmethod
+    def whole(cls, grid: GridSpec) -> "Region":
+        return cls(0, 0, grid.ny, grid.nx)
+
+    @classmethod
+    def disc(cls, grid: GridSpec, xy: tuple[float, float], radius_m: float) -> "Region":
+        """Grid positions within ``radius_m`` metres of ``xy`` (at least the 2 x 2 nodes around it)."""
+        x0, y0, x1, y1 = grid.bounds()
+        step = abs(grid.geotransform[1])
+        x, y = float(xy[0]), float(xy[1])
+        if not (x0 - step / 2 <= x <= x1 + step / 2 and y0 - step / 2 <= y <= y1 + step / 2):
+            raise InvalidInputError(
+                f"prior position ({x:.1f}, {y:.1f}) is outside the database grid "
+                f"x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} (metres, the database's CRS): check the prior "
+                "and its CRS, or use --mode lost")
+        if not (radius_m > 0 and math.isfinite(radius_m)):
+            raise InvalidInputError(f"search radius must be a positive number of metres, got {radius_m}")
+        fi, fj = grid.ij(x, y)
+        r = max(radius_m / step, 1.0)
+        i0, i1 = max(int(math.floor(fi - r)), 0), min(int(math.ceil(fi + r)), grid.ny - 1)
+        j0, j1 = max(int(math.floor(fj - r)), 0), min(int(math.ceil(fj + r)), grid.nx - 1)
+        ii, jj = np.mgrid[i0:i1 + 1, j0:j1 + 1]
+        gx, gy = grid.xy(ii, jj)
+        mask = np.hypot(gx - x, gy - y) <= max(radius_m, step * math.sqrt(2.0)) + 1e-9
+        return cls(i0, j0, i1 - i0 + 1, j1 - j0 + 1, mask)
+
+    def contains(self, i: int, j: int) -> bool:
+        ok = self.row0 <= i < self.row0 + self.nrows and self.col0 <= j < self.col0 + self.ncols
+        return bool(ok and (self.mask is None or self.mask[i - self.row0, j - self.col0]))
+
+
+@dataclass
+class ScoreMap:
+    """Best score per position over the allowed headings, for a region of the grid.
+
+    score : (nrows, ncols) float64, degrees^2 (inf: excluded or outside the region)
+    shift : (nrows, ncols) int16, best heading shift (see board.match.fft_score)
+    exact : (nrows, ncols) bool, False where pruned (score then holds a lower bound)
+    """
+
+    region: Region
+    score: np.ndarray
+    shift: np.ndarray
+    exact: np.ndarray
+    n_scored: int = 0
+    n_pruned: int = 0
+
+    def argmin(self) -> tuple[int, int]:
+        """Grid (row, col) of the best position."""
+        k = int(np.argmin(self.score))
+        r, c = divmod(k, self.score.shape[1])
+        return r + self.region.row0, c + self.region.col0
+
+
+def fill_missing(block: np.ndarray) -> np.ndarray:
+    """Fill NaN samples of database skylines (P, N) by periodic linear interpolation.
+
+    Rows with more than MAX_MISSING_FRACTION missing stay NaN (the caller excludes them).
+    """
+    bad = ~np.isfinite(block)
+    rows = np.flatnonzero(bad.any(axis=1))
+    n = block.shape[1]
+    for r in rows:
+        m = bad[r]
+        if m.sum() > MAX_MISSING_FRACTION * n:
+            continue
+        k = np.flatnonzero(~m)
+        block[r, m] = np.interp(np.flatnonzero(m), k, block[r, k], period=n)
+    return block
+
+
+def _tiles_in(db: SkyDB, region: Region) -> list[Tile]:
+    r1, c1 = region.row0 + region.nrows, region.col0 + region.ncols
+    return [t for t in db.tiles if t.row0 < r1 and t.row0 + t.nrows > region.row0
+            and t.col0 < c1 and t.col0 + t.ncols > region.col0]
+
+
+def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_shifts: np.ndarray | None = None,
+           prune: bool = True, prune_factor: float = 4.0, progress=None) -> ScoreMap:
+    """Score every position of ``region`` (default: the whole grid) against query ``q``.
+
+    allowed_shifts : (N,) bool, headings the search may return (None: all)
+    prune : skip the inverse DFTs of positions whose exact lower bound exceeds ``prune_factor``
+        times the best score so far (full panoramas; the argmin is unchanged, see module doc)
+    progress : optional callable(n_done_tiles, n_tiles)
+    """
+    if q.n != db.meta.n_azimuth:
+        raise InvalidInputError(f"query has {q.n} azimuth samples, the database {db.meta.n_azimuth}")
+    region = region or Region.whole(db.grid)
+    shape = (region.nrows, region.ncols)
+    out = ScoreMap(region, np.full(shape, np.inf), np.zeros(shape, np.int16), np.zeros(shape, bool))
+    penalty = None
+    if allowed_shifts is not None:
+        allowed_shifts = np.asarray(allowed_shifts, bool)
+        if not allowed_shifts.any():
+            raise InvalidInputError("no heading is allowed by the heading window")
+        penalty = np.where(allowed_shifts, 0.0, np.inf)
+    use_prune = prune and q.full  # the bound holds for every heading, so also under a heading window
+    best = np.inf
+    tiles = _tiles_in(db, region)
+    for it, t in enumerate(tiles):
+        r0, r1 = max(t.row0, region.row0), min(t.row0 + t.nrows, region.row0 + region.nrows)
+        c0, c1 = max(t.col0, region.col0), min(t.col0 + t.ncols, region.col0 + region.ncols)
+        sub = Tile(t.ti, t.tj, r0, c0, r1 - r0, c1 - c0)
+        el = db.read_tile(sub).reshape(-1, q.n).astype(np.float64)
+        oi, oj = np.mgrid[r0 - region.row0:r1 - region.row0, c0 - region.col0:c1 - region.col0]
+        oi, oj = oi.ravel(), oj.ravel()
+        keep = np.ones(el.shape[0], bool) if region.mask is None else region.mask[oi, oj]
+        fill_missing(el)
+        keep &= np.isfinite(el).all(axis=1)
+        el, oi, oj = el[keep], oi[keep], oj[keep]
+        for b0 in range(0, el.shape[0], BLOCK):
+            blk = el[b0:b0 + BLOCK]
+            bi, bj = oi[b0:b0 + BLOCK], oj[b0:b0 + BLOCK]
+            s = blk - blk.mean(axis=1, keepdims=True)
+            sc = dft_rows(s)
+            if use_prune and np.isfinite(best):
+                lb = lower_bound_full(q, sc)
+                todo = lb <= prune_factor * best
+                pr = ~todo
+                out.score[bi[pr], bj[pr]] = lb[pr]
+                out.n_pruned += int(pr.sum())
+                if not todo.any():
+                    continue
+                blk, sc, bi, bj = blk[todo], sc[todo], bi[todo], bj[todo]
+            scores = score_block(q, blk, want_b=False, sc=sc).scores
+            if penalty is not None:
+                scores = scores + penalty
+            a = np.argmin(scores, axis=1)
+            smin = scores[np.arange(a.size), a]
+            out.score[bi, bj] = smin
+            out.shift[bi, bj] = a
+            out.exact[bi, bj] = True
+            out.n_scored += a.size
+            best = min(best, float(smin.min()))
+        if progress is not None:
+            progress(it + 1, len(tiles))
+    if not np.isfinite(out.score).any():
+        raise NoDataError("no database skyline in the search area could be scored (missing tiles or "
+                          "positions?): check that the database render is complete (`skyloc db info`)")
+    log.info("scored %d positions, pruned %d", out.n_scored, out.n_pruned)
+    return out

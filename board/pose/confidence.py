@@ -1,0 +1,103 @@
+"""Confidence of a fix: noise from the residual, covariance, 95 % ellipse, ambiguity, status.
+
+Model: the seen query samples are the database skyline at the true pose plus noise of unknown
+variance.  The noise variance is estimated from the residual of the best fit; residuals of a
+skyline are correlated along azimuth (rendering and extraction errors are smooth), so the
+variance is inflated by ``n / n_eff`` with ``n_eff`` from the residual's autocorrelation
+(Bartlett's formula).  That gives
+
+* the local covariance of the refined parameters, ``s2 (J^T J)^-1`` (Gauss-Newton), and
+* a likelihood over the coarse score map, ``exp(-(S - S_min) / (2 s2_coarse))``, whose spread
+  (weighted covariance of the grid positions) and mass far from the best position measure
+  how ambiguous the fix is.
+
+The reported position covariance is the sum of both (the local one resolves between grid nodes,
+the global one catches secondary minima).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: chi-square quantile, 2 degrees of freedom, 95 %
+CHI2_2D_95 = 5.991464547107979
+
+
+@dataclass
+class Thresholds:
+    """Decision thresholds of the status (defaults documented in docs/matching.md).
+
+    max_rms_deg : a best match with a larger RMS residual is ``failed`` (the skyline is not in this database)
+    max_far_mass : posterior mass farther than the ambiguity radius above which the fix is ``ambiguous``
+    ambiguity_radius_steps : radius (grid steps) beyond which a second minimum is a different place
+    max_sigma_steps : a 1-sigma position error above this many grid steps is ``ambiguous``
+    """
+
+    max_rms_deg: float = 1.5
+    max_far_mass: float = 0.01
+    ambiguity_radius_steps: float = 5.0
+    max_sigma_steps: float = 3.0
+
+
+def effective_samples(residual: np.ndarray) -> float:
+    """Effective number of independent samples of a correlated residual (Bartlett, initial positive sequence)."""
+    r = np.asarray(residual, float) - np.mean(residual)
+    n = r.size
+    var = float(r @ r) / n
+    if n < 4 or var <= 0:
+        return float(max(n, 1))
+    acc = 0.0
+    for k in range(1, n // 2):
+        rho = float(r[:-k] @ r[k:]) / (n * var)
+        if rho <= 0.05:
+            break
+        acc += rho
+    return float(n / (1.0 + 2.0 * acc))
+
+
+def ellipse_95(cov: np.ndarray) -> tuple[float, float, float]:
+    """(semi-major m, semi-minor m, azimuth of the major axis in degrees clockwise from north) of the 95 % ellipse."""
+    w, V = np.linalg.eigh(cov)
+    w = np.clip(w, 0, None)
+    major = V[:, 1]
+    az = math.degrees(math.atan2(major[0], major[1])) % 180.0
+    return math.sqrt(CHI2_2D_95 * w[1]), math.sqrt(CHI2_2D_95 * w[0]), az
+
+
+@dataclass
+class MapLikelihood:
+    """Summary of the likelihood over the coarse score map (metres, the database's CRS)."""
+
+    cov_xy: np.ndarray
+    far_mass: float
+    best_far_score: float
+    best_score: float
+
+    @property
+    def ambiguity_ratio(self) -> float:
+        """best score / best score farther than the ambiguity radius, in [0, 1] (1: two equally good places)."""
+        if not math.isfinite(self.best_far_score):
+            return 0.0
+        if self.best_far_score <= 0:
+            return 1.0
+        return float(min(self.best_score / self.best_far_score, 1.0))
+
+
+def map_likelihood(score: np.ndarray, x: np.ndarray, y: np.ndarray, *, best_xy: tuple[float, float],
+                   s2: float, radius_m: float) -> MapLikelihood:
+    """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2), positions x, y (metres)."""
+    ok = np.isfinite(score)
+    s = score[ok]
+    xs, ys = x[ok], y[ok]
+    smin = float(s.min())
+    w = np.exp(-(s - smin) / (2.0 * max(s2, 1e-12)))
+    w /= w.sum()
+    mx, my = float(w @ xs), float(w @ ys)
+    dx, dy = xs - mx, ys - my
+    cov = np.array([[w @ (dx * dx), w @ (dx * dy)], [w @ (dx * dy), w @ (dy * dy)]])
+    far = np.hypot(xs - best_xy[0], ys - best_xy[1]) > radius_m
+    far_mass = float(w[far].sum())
+    best_far = float(s[far].min()) if far.any() else math.inf
+    return MapLikelihood(cov, far_mass, best_far, smin)

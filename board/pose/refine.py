@@ -1,0 +1,163 @@
+"""Continuous pose refinement: position between grid nodes, heading, pitch and roll.
+
+The database skyline at a fractional grid position is the bilinear interpolation of the four
+surrounding nodes' skylines, read at any azimuth by periodic linear interpolation.  Every seen
+query sample is rotated on the sphere by the candidate pose (exact, no small-angle model) and
+compared with that skyline at its ENU azimuth; the mean offset is removed, as in the coarse
+score.  Levenberg-Marquardt with a numerical Jacobian minimises the sum of squared residuals
+(plus an optional IMU prior on pitch and roll).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from board.conventions import rotation_enu_from_camera
+from board.pose.sphere import body_from_rel_az_el
+
+log = logging.getLogger(__name__)
+
+PARAMS = ("row", "col", "heading", "pitch", "roll")
+_DIFF_STEP = {"row": 0.02, "col": 0.02, "heading": 0.02, "pitch": 0.02, "roll": 0.02}
+
+
+@dataclass
+class LocalDB:
+    """A window of database skylines: ``el`` (nr, nc, N) degrees at grid rows/cols from (row0, col0)."""
+
+    el: np.ndarray
+    row0: int
+    col0: int
+    az_start_deg: float
+
+    @property
+    def n(self) -> int:
+        return self.el.shape[2]
+
+    def skyline_at(self, row: float, col: float) -> np.ndarray:
+        """(N,) bilinear interpolation of the node skylines at fractional (row, col) (clamped to the window)."""
+        nr, nc, _ = self.el.shape
+        fr = float(np.clip(row - self.row0, 0, nr - 1))
+        fc = float(np.clip(col - self.col0, 0, nc - 1))
+        i0, j0 = min(int(fr), max(nr - 2, 0)), min(int(fc), max(nc - 2, 0))
+        i1, j1 = min(i0 + 1, nr - 1), min(j0 + 1, nc - 1)
+        ti, tj = fr - i0, fc - j0
+        e = self.el
+        return ((1 - ti) * ((1 - tj) * e[i0, j0] + tj * e[i0, j1])
+                + ti * ((1 - tj) * e[i1, j0] + tj * e[i1, j1]))
+
+    def sample(self, sky: np.ndarray, az_deg: np.ndarray) -> np.ndarray:
+        """Skyline ``sky`` (N,) read at azimuths ``az_deg`` (periodic linear interpolation)."""
+        n = self.n
+        u = np.mod((az_deg - self.az_start_deg) * n / 360.0, n)
+        k0 = np.floor(u).astype(int) % n
+        t = u - np.floor(u)
+        return sky[k0] * (1 - t) + sky[(k0 + 1) % n] * t
+
+
+@dataclass
+class Refined:
+    """Result of :func:`refine`.
+
+    values : dict of the 5 pose parameters (row/col fractional grid indices, degrees for angles)
+    offset_deg : fitted mean elevation offset; cost : sum of squared residuals, degrees^2
+    residual : (n_seen,) degrees; jac : (n_seen, n_free) d residual / d free parameter
+    free : names of the refined parameters; prior_info : (n_free, n_free) information of the prior
+    """
+
+    values: dict
+    offset_deg: float
+    cost: float
+    residual: np.ndarray
+    jac: np.ndarray
+    free: tuple[str, ...]
+    prior_info: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    n_iter: int = 0
+
+
+def _residual(local: LocalDB, vb: np.ndarray, v: dict) -> tuple[np.ndarray, float]:
+    """Offset-free residual (degrees) of body-frame query directions ``vb`` (n, 3) at pose ``v``."""
+    u = vb @ rotation_enu_from_camera(v["heading"], v["pitch"], v["roll"]).T
+    az = np.degrees(np.arctan2(u[:, 0], u[:, 1]))
+    e = np.degrees(np.arcsin(np.clip(u[:, 2], -1.0, 1.0)))
+    r = e - local.sample(local.skyline_at(v["row"], v["col"]), az)
+    mu = float(r.mean())
+    return r - mu, mu
+
+
+def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict, *,
+           free: tuple[str, ...] = PARAMS, tilt_prior: tuple[float, float, float] | None = None,
+           noise_deg: float = 0.1, bounds: dict | None = None, max_iter: int = 40) -> Refined:
+    """Levenberg-Marquardt refinement of ``init`` (dict of PARAMS) on the seen query samples.
+
+    theta_deg, el_deg : seen query samples (relative azimuth, elevation), degrees
+    tilt_prior : (pitch, roll, sigma) degrees from an IMU, weighted against ``noise_deg``
+    bounds : {name: (lo, hi)} box constraints (e.g. the fractional grid window)
+    """
+    v = {k: float(init[k]) for k in PARAMS}
+    bounds = bounds or {}
+    free = tuple(free)
+    w_prior = 0.0
+    if tilt_prior is not None:
+        w_prior = noise_deg / max(float(tilt_prior[2]), 1e-6)
+
+    def clamp(vv):
+        for k, (lo, hi) in bounds.items():
+            vv[k] = float(np.clip(vv[k], lo, hi))
+        return vv
+
+    def prior_res(vv):
+        if tilt_prior is None:
+            return np.zeros(0)
+        return np.array([w_prior * (vv[k] - tilt_prior[i]) for i, k in enumerate(("pitch", "roll")) if k in free])
+
+    vb = body_from_rel_az_el(theta_deg, el_deg)
+
+    def full_res(vv):
+        r, _ = _residual(local, vb, vv)
+        return np.concatenate([r, prior_res(vv)])
+
+    def jacobian(vv, r0):
+        J = np.empty((r0.size, len(free)))
+        for c, k in enumerate(free):
+            h = _DIFF_STEP[k]
+            vp, vm = dict(vv), dict(vv)
+            vp[k] += h
+            vm[k] -= h
+            J[:, c] = (full_res(vp) - full_res(vm)) / (2 * h)
+        return J
+
+    v = clamp(v)
+    r = full_res(v)
+    cost = float(r @ r)
+    lam = 1e-3
+    it = 0
+    for it in range(1, max_iter + 1):
+        J = jacobian(v, r)
+        A = J.T @ J
+        g = J.T @ r
+        improved = False
+        for _ in range(10):
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-9), -g)
+            cand = dict(v)
+            for c, k in enumerate(free):
+                cand[k] += step[c]
+            cand = clamp(cand)
+            rc = full_res(cand)
+            cc = float(rc @ rc)
+            if cc < cost:
+                improved = True
+                v, r, dc, cost = cand, rc, cost - cc, cc
+                lam = max(lam / 3, 1e-7)
+                break
+            lam *= 4
+        if not improved or dc < 1e-10 * max(cost, 1e-12):
+            break
+    res, mu = _residual(local, vb, v)
+    J = jacobian(v, r)
+    n = res.size
+    pinfo = J[n:].T @ J[n:] if J.shape[0] > n else np.zeros((len(free), len(free)))
+    v["heading"] = float(np.mod(v["heading"], 360.0))
+    return Refined(v, mu, float(res @ res), res, J[:n], free, pinfo, it)
