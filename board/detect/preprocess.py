@@ -1,0 +1,42 @@
+"""Image preparation shared by the detectors: grey float image in [0, 1] and the seen mask."""
+from __future__ import annotations
+
+import numpy as np
+
+from board.errors import InvalidInputError
+
+
+def to_grey01(image: np.ndarray) -> tuple[np.ndarray, float]:
+    """Grey float32 image scaled to [0, 1] and the full-scale value of the input dtype.
+
+    image : (H, W) or (H, W, 3) BGR, uint8 / uint16 / float (floats are taken as already in [0, 1]).
+    """
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim == 3:
+        if img.shape[2] != 3:
+            raise InvalidInputError(f"colour images must have 3 channels (BGR), got {img.shape[2]}")
+        img = cv2.cvtColor(img.astype(np.float32) if img.dtype not in (np.uint8, np.uint16) else img,
+                           cv2.COLOR_BGR2GRAY)
+    elif img.ndim != 2:
+        raise InvalidInputError(f"an image is (H, W) or (H, W, 3), got shape {img.shape}")
+    if img.dtype == np.uint8:
+        full = 255.0
+    elif img.dtype == np.uint16:
+        full = 65535.0
+    elif img.dtype == bool:
+        return img.astype(np.float32), 1.0
+    else:
+        full = 1.0
+    return img.astype(np.float32) / np.float32(full), full
+
+
+def seen_or_all(seen: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    """The seen mask as bool (H, W); everything seen when None."""
+    if seen is None:
+        return np.ones(shape, dtype=bool)
+    seen = np.asarray(seen, dtype=bool)
+    if seen.shape != shape:
+        raise InvalidInputError(f"seen mask shape {seen.shape} differs from the image {shape}")
+    return seen

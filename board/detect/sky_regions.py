@@ -1,0 +1,295 @@
+"""Improved skyline detector: sky-region consistency, L1-smooth path, sub-pixel line, per-column confidence.
+
+Where the report's graph looks only at gradients near the line (and so follows strong edges
+inside the terrain, or misses peaks next to them), this detector asks that the region above
+the line look like sky and the region below like ground:
+
+1. Features per pixel: blurred intensity and a texture measure (local standard deviation,
+   the smaller of the windows just above and just below the pixel, so that the measure does
+   not bleed across the line).  Two Gaussian classes (sky, ground) give a per-pixel sky
+   probability ``p``; the first split comes from Otsu, the sky class being the one that fills
+   the top of the picture; then the classes are re-fitted on the two sides of the detected
+   line and the line detected again.
+2. Node cost of a boundary just above row ``r`` in column ``c``: the number of pixels it
+   misclassifies in that column (sky-like pixels below, ground-like above; scaled, capped)
+   plus the lack of a sky-to-ground step of the right polarity.
+3. Path: one row per column, any jump between neighbouring columns at a cost per row (cliffs
+   allowed), solved exactly by dynamic programming with L1 distance transforms
+   (:func:`board.detect.graph_dp.shortest_path_l1`), with 360-degree wrap.
+4. Sub-pixel position from a parabola through the vertical intensity step.
+5. Confidence per column in [0, 1]: step contrast against the noise and the scene contrast,
+   sky/ground consistency of the two sides, saturation, enough seen pixels on both sides;
+   columns below ``min_confidence`` (and short isolated runs) are masked, never guessed.
+
+Positions are continuous row coordinates with the centre of the top pixel at 0: a line at
+``y`` means rows ``< y`` are sky (the boundary between rows ``b - 1`` and ``b`` is ``b - 0.5``).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from board.detect.graph_dp import shortest_path_l1
+from board.detect.preprocess import seen_or_all, to_grey01
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DetectorParams:
+    """Tuning of :func:`detect_skyline` (dimensionless unless stated)."""
+
+    blur_sigma_px: float = 1.0          # Gaussian blur before features and steps, pixels
+    texture_window_px: int = 7          # texture window height (one-sided, one column wide), pixels
+    region_scale_px: float = 6.0        # misclassified pixels worth one unit of cost
+    region_cap: float = 4.0             # cap of the region cost (keeps far rows from dominating)
+    edge_weight: float = 1.0
+    jump_cost_per_px: float = 0.03      # cost of a one-row jump between neighbouring columns
+    iterations: int = 2                 # class re-fits on the detected line
+    refit_margin_px: int = 4            # rows next to the line left out of the re-fit
+    contrast_window_px: int = 5         # rows each side for the step contrast
+    region_window_px: int = 30          # rows each side for the region consistency check
+    min_confidence: float = 0.5
+    min_run_columns: int = 5            # valid runs shorter than this are masked
+    saturation_level: float = 0.98      # fraction of full scale counted as saturated
+    min_seen_rows: int = 3              # seen rows needed on each side of the line
+    wrap_margin_columns: int = 200
+
+
+@dataclass
+class Detection:
+    """Per-column result of a detector on an (H, W) image.
+
+    line_row : (W,) float, continuous row of the line (rows above are sky), NaN where masked
+    raw_row : (W,) float, the line before masking (for debugging pictures)
+    confidence : (W,) float in [0, 1]
+    valid : (W,) bool, columns kept
+    diagnostics : scene-level numbers (class separation, fraction of columns at top/bottom, ...)
+    """
+
+    line_row: np.ndarray
+    raw_row: np.ndarray
+    confidence: np.ndarray
+    valid: np.ndarray
+    diagnostics: dict = field(default_factory=dict)
+
+
+# -- features -------------------------------------------------------------------------------------
+def _texture(grey: np.ndarray, win: int) -> np.ndarray:
+    """Local std over ``win`` rows of one column: the smaller of the windows ending and starting at each pixel.
+
+    One column wide so that a steep line does not leak into the window from the neighbouring columns.
+    """
+    import cv2
+
+    f = grey.astype(np.float32)
+    out = None
+    for anchor_y in (win - 1, 0):
+        m = cv2.boxFilter(f, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
+        m2 = cv2.boxFilter(f * f, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
+        v = np.maximum(m2 - m * m, 0.0)
+        out = v if out is None else np.minimum(out, v)
+    return np.sqrt(out)
+
+
+def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
+    if values.size < 10:
+        return float("nan"), floor
+    return float(np.mean(values)), max(float(np.std(values)), floor)
+
+
+def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float]
+               ) -> tuple[np.ndarray, list[tuple[float, float, float, float]]]:
+    """Log-likelihood ratio sky vs ground, naive Bayes with one Gaussian per class and feature."""
+    llr = np.zeros(feats[0].shape, dtype=np.float32)
+    stats = []
+    for f, floor in zip(feats, floors):
+        ms, ss = _fit(f[sky], floor)
+        mg, sg = _fit(f[ground], floor)
+        stats.append((ms, ss, mg, sg))
+        if not (np.isfinite(ms) and np.isfinite(mg)):
+            continue
+        llr += (-0.5 * ((f - ms) / ss) ** 2 - np.log(ss) + 0.5 * ((f - mg) / sg) ** 2 + np.log(sg)).astype(np.float32)
+    return llr, stats
+
+
+def _bands_from_line(line: np.ndarray, H: int, margin: int) -> tuple[np.ndarray, np.ndarray]:
+    rows = np.arange(H)[:, None]
+    return rows < (line[None, :] - margin), rows >= (line[None, :] + margin)
+
+
+# -- the detector ---------------------------------------------------------------------------------
+def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: bool = False,
+                   params: DetectorParams = DetectorParams()) -> Detection:
+    """Detect the skyline in an (H, W) or (H, W, 3) image whose columns are azimuths and rows elevations.
+
+    seen : (H, W) bool, False where nothing was observed (never used as evidence); wrap : True for
+    a 360-degree panorama.  Returns a :class:`Detection` (rows in pixels, see the module docstring).
+    """
+    import cv2
+
+    grey, _full = to_grey01(image)
+    H, W = grey.shape
+    seen = seen_or_all(seen, (H, W))
+    P = params
+    blur = cv2.GaussianBlur(grey, (0, 0), P.blur_sigma_px) if P.blur_sigma_px > 0 else grey
+    tex = np.log(_texture(grey, P.texture_window_px) + 1e-3)
+    seen_f = seen.astype(np.float32)
+    diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
+
+    # first split: Otsu on the seen pixels; the sky class is the one filling the top of the seen area
+    vals8 = np.clip(blur[seen] * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    if vals8.size == 0:
+        return _empty(W, diag | {"reason": "nothing seen"})
+    thr, _ = cv2.threshold(vals8.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    bright = blur > (thr / 255.0)
+    seen_rank = np.cumsum(seen, axis=0)
+    n_seen_col = seen_rank[-1]
+    top = seen & (seen_rank <= np.maximum(2, 0.1 * n_seen_col)[None, :])
+    sky_is_bright = bool(bright[top].mean() >= 0.5) if top.any() else True
+    sky0 = seen & (bright == sky_is_bright)
+    ground0 = seen & ~sky0
+    diag["sky_is_bright_initial"] = sky_is_bright
+
+    feats = [blur, tex]
+    floors = [0.01, 0.05]
+    line = None
+    sky_cls, ground_cls = sky0, ground0
+    for it in range(max(1, P.iterations)):
+        llr, stats = _class_llr(feats, sky_cls, ground_cls, floors)
+        p = 1.0 / (1.0 + np.exp(-np.clip(llr, -20, 20)))
+        q = np.where(seen, p - 0.5, 0.0).astype(np.float32)
+        mu_s, mu_g = stats[0][0], stats[0][2]
+        if not (np.isfinite(mu_s) and np.isfinite(mu_g)):
+            diag.update(reason="one class only", intensity_sky=mu_s, intensity_ground=mu_g)
+            return _empty(W, diag)
+        polarity = 1.0 if mu_g > mu_s else -1.0      # sign of the sky -> ground step going down
+        contrast = abs(mu_g - mu_s)
+        # region cost of a boundary just above row b: sky-like pixels below + ground-like above
+        qcum = np.zeros((H + 1, W), dtype=np.float32)
+        np.cumsum(q, axis=0, out=qcum[1:])
+        region = (qcum[-1][None, :] - 2.0 * qcum[:-1])       # (H, W), boundary above row b
+        region -= region.min(axis=0, keepdims=True)
+        region = np.minimum(region / P.region_scale_px, P.region_cap)
+        step = np.zeros((H, W), dtype=np.float32)
+        step[1:] = polarity * (blur[1:] - blur[:-1])
+        step[1:] *= seen[1:] & seen[:-1]
+        edge = np.clip(step / max(0.5 * contrast, 1e-3), 0.0, 1.0)
+        node = region.astype(np.float32) + P.edge_weight * (1.0 - edge)
+        path = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns)
+        line = path.rows_top
+        if it + 1 < max(1, P.iterations):
+            sky_cls, ground_cls = _bands_from_line(line.astype(np.float64), H, P.refit_margin_px)
+            sky_cls &= seen
+            ground_cls &= seen
+            if sky_cls.sum() < 50 or ground_cls.sum() < 50:
+                break
+    diag.update(intensity_sky=float(mu_s), intensity_ground=float(mu_g), texture_sky=float(stats[1][0]),
+                texture_ground=float(stats[1][2]), intensity_sigma_sky=float(stats[0][1]),
+                intensity_sigma_ground=float(stats[0][3]),
+                separation=float(contrast / np.hypot(stats[0][1], stats[0][3])))
+
+    b = line.astype(np.int64)
+    y = _subpixel(step, b)
+    conf = _confidence(grey, blur, p, seen, step, b, contrast, float(stats[0][1]), P)
+    valid = conf >= P.min_confidence
+    valid &= n_seen_col > 0
+    valid = _drop_short_runs(valid, P.min_run_columns, wrap)
+    first_seen = np.argmax(seen, axis=0)
+    last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
+    diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
+    diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
+    diag["valid_fraction"] = float(valid.mean())
+    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+
+
+def _empty(W: int, diag: dict) -> Detection:
+    nan = np.full(W, np.nan)
+    return Detection(nan, nan.copy(), np.zeros(W), np.zeros(W, dtype=bool), diag)
+
+
+def _subpixel(step: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Line position: the strongest step within +-2 rows of ``b``, refined by a parabola (rows)."""
+    H, W = step.shape
+    cols = np.arange(W)
+    offs = np.arange(-2, 3)
+    cand = np.clip(b[None, :] + offs[:, None], 1, H - 1)
+    s = step[cand, cols[None, :]]
+    k = np.argmax(s, axis=0)
+    bb = cand[k, cols]
+    g0 = step[np.clip(bb - 1, 0, H - 1), cols]
+    g1 = step[bb, cols]
+    g2 = step[np.clip(bb + 1, 0, H - 1), cols]
+    den = g0 - 2.0 * g1 + g2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(den < -1e-9, 0.5 * (g0 - g2) / den, 0.0)
+    d = np.clip(d, -0.5, 0.5)
+    # step[r] sits between rows r-1 and r, i.e. at r - 0.5
+    return bb - 0.5 + d
+
+
+def _window_mean(a: np.ndarray, w: np.ndarray, b: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean of ``a`` over rows [b+lo, b+hi) of every column (weights ``w``), and the weight sum."""
+    H, W = a.shape
+    rows = b[None, :] + np.arange(lo, hi)[:, None]
+    inside = (rows >= 0) & (rows < H)
+    rows = np.clip(rows, 0, H - 1)
+    cols = np.arange(W)[None, :]
+    ww = w[rows, cols] * inside
+    sw = ww.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = (a[rows, cols] * ww).sum(axis=0) / sw
+    return m, sw
+
+
+def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndarray, step: np.ndarray,
+                b: np.ndarray, contrast: float, sigma_sky: float, P: DetectorParams) -> np.ndarray:
+    """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring)."""
+    w = P.contrast_window_px
+    sf = seen.astype(np.float32)
+    above, n_above = _window_mean(blur, sf, b, -w, 0)
+    below, n_below = _window_mean(blur, sf, b, 0, w)
+    polarity = np.sign(np.nanmedian(below - above)) or 1.0
+    local = polarity * (below - above)
+    # noise of a w-pixel mean of the blurred image: generous bound from the sky spread
+    noise = max(sigma_sky, 0.004) / np.sqrt(w)
+    c_contrast = np.minimum(np.clip((local / noise - 3.0) / 3.0, 0, 1),
+                            np.clip((local / max(contrast, 1e-3) - 0.1) / 0.2, 0, 1))
+    R = P.region_window_px
+    sky_like = (p > 0.5).astype(np.float32)
+    fs, ns = _window_mean(sky_like, sf, b, -R, 0)
+    fg, ng = _window_mean(1.0 - sky_like, sf, b, 0, R)
+    c_region = np.minimum(np.clip((fs - 0.6) / 0.3, 0, 1), np.clip((fg - 0.45) / 0.3, 0, 1))
+    sat = (grey >= P.saturation_level).astype(np.float32)
+    fsat, _ = _window_mean(sat, sf, b, -w, w)
+    dark = (grey <= 1.0 - P.saturation_level).astype(np.float32)
+    fdark, _ = _window_mean(dark, sf, b, -w, w)
+    c_sat = 1.0 - np.clip(np.maximum(fsat, fdark) / 0.5, 0, 1)
+    c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
+    conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen])
+    log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f",
+              np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5), np.mean(c_seen >= 0.5))
+    return np.nan_to_num(conf, nan=0.0)
+
+
+def _drop_short_runs(valid: np.ndarray, min_run: int, wrap: bool) -> np.ndarray:
+    """Mask runs of valid columns shorter than ``min_run`` (runs may cross the seam when ``wrap``)."""
+    if min_run <= 1 or valid.all() or not valid.any():
+        return valid
+    v = valid.copy()
+    W = v.size
+    if wrap:
+        shift = int(np.argmin(v))          # start at an invalid column so no run crosses the seam
+        v = np.roll(v, -shift)
+    d = np.diff(np.concatenate([[0], v.astype(np.int8), [0]]))
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1)
+    for s, e in zip(starts, ends):
+        if e - s < min_run:
+            v[s:e] = False
+    if wrap:
+        v = np.roll(v, shift)
+    assert v.size == W
+    return v
