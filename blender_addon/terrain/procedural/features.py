@@ -41,6 +41,7 @@ def add_blocks(
         c = np.clip((centres_rc[k, 1] + rad * np.cos(ang)).astype(np.int64), 0, cols - 1)
     # footprint in cells grows with height (a block about as wide as it is high)
     w = np.clip(np.round(heights / cell_m), 1, 3).astype(np.int64)
+    ground_all = z[r, c].copy()  # blocks rest on the ground, not on each other
     for size in (1, 2, 3):
         sel = w == size
         if not sel.any():
@@ -49,8 +50,7 @@ def add_blocks(
             for dc in range(size):
                 rr = np.clip(r[sel] + dr, 0, rows - 1)
                 cc = np.clip(c[sel] + dc, 0, cols - 1)
-                ground = z[r[sel], c[sel]]
-                np.maximum.at(z, (rr, cc), ground + heights[sel])
+                np.maximum.at(z, (rr, cc), ground_all[sel] + heights[sel])
 
 
 def _line_distance(shape, cell_m, p0, p1, r0, r1, c0, c1):
