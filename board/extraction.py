@@ -1,0 +1,216 @@
+"""From an acquisition or a panorama to a skyline (elevation by azimuth), with failure detection.
+
+``extract_from_acquisition(dir)`` builds the panorama (:mod:`board.panorama`) and runs
+``extract_from_panorama``, which
+
+1. refuses pictures with nothing to find, with the reason: nothing seen, black,
+   over-exposed, all sky, all ground, too few confident columns (status "failed", no skyline:
+   a made-up skyline is worse than none);
+2. detects the line (:func:`board.detect.detect_skyline`), masking doubtful columns;
+3. converts rows to elevations and samples them as the database does: point samples at
+   ``azimuth_start_deg + j * step`` (linear between the two nearest panorama columns, NaN when
+   either is masked or unseen).  Azimuths are relative to the heading (0 = optical axis at pan 0)
+   for panoramas built from acquisitions; a panorama whose ``azimuth_reference`` is "north"
+   gives a skyline relative to north (``meta["azimuth_reference"]``).
+
+Status: "ok" (>= ``min_ok_fraction`` of the seen columns kept), "degraded" (fewer, still at
+least ``min_coverage_deg`` of azimuth) or "failed" (``skyline`` is None, ``reason`` says why).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from board.acquisition import Acquisition, Panorama, PanoramaGeometry, load_acquisition, load_panorama
+from board.conventions import DEFAULT_N_AZIMUTH, azimuth_grid_deg
+from board.detect import Detection, DetectorParams, detect_skyline
+from board.detect.preprocess import to_grey01
+from board.panorama import build_panorama
+from board.skyline import Skyline
+
+log = logging.getLogger(__name__)
+
+STATUS_OK = "ok"
+STATUS_DEGRADED = "degraded"
+STATUS_FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class ExtractionOptions:
+    """Options of the extraction (angles in degrees)."""
+
+    n_azimuth: int = DEFAULT_N_AZIMUTH
+    azimuth_start_deg: float = 0.0
+    detector: DetectorParams = DetectorParams()
+    black_level: float = 0.03            # fraction of full scale
+    saturation_level: float = 0.98
+    bad_pixel_fraction: float = 0.9      # fraction of seen pixels black/saturated that fails the picture
+    min_separation: float = 2.0          # sky/ground contrast over their spread below which there is one class
+    min_coverage_deg: float = 20.0
+    min_ok_fraction: float = 0.9
+
+
+@dataclass
+class ExtractionResult:
+    """Outcome of an extraction.
+
+    skyline : Skyline (relative to the heading) or None when status is "failed"
+    status, reason : "ok" / "degraded" / "failed" and why
+    column_confidence : (W,) confidence of every panorama column (empty when detection did not run)
+    panorama, detection : the intermediate products (for debug pictures)
+    """
+
+    skyline: Skyline | None
+    status: str
+    reason: str
+    column_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    panorama: Panorama | None = None
+    detection: Detection | None = None
+    elapsed_s: float = 0.0
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status != STATUS_FAILED
+
+    def to_json_dict(self) -> dict:
+        return {"status": self.status, "reason": self.reason, "elapsed_s": round(self.elapsed_s, 4),
+                "coverage_deg": None if self.skyline is None else self.skyline.coverage_deg,
+                "skyline": None if self.skyline is None else self.skyline.to_dict(),
+                "diagnostics": _jsonable(self.diagnostics)}
+
+
+def _jsonable(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, (np.floating, np.integer, np.bool_)):
+            v = v.item()
+        out[k] = v
+    return out
+
+
+def extract_from_acquisition(acq: Acquisition | str | os.PathLike, *, refine_yaw: bool = False,
+                             azimuth_step_deg: float | None = None,
+                             options: ExtractionOptions = ExtractionOptions()) -> ExtractionResult:
+    """Build the panorama of an acquisition (folder or object) and extract its skyline."""
+    t0 = time.perf_counter()
+    if not isinstance(acq, Acquisition):
+        acq = load_acquisition(Path(acq))
+    pano = build_panorama(acq, refine_yaw=refine_yaw, azimuth_step_deg=azimuth_step_deg)
+    res = extract_from_panorama(pano, options=options)
+    res.elapsed_s = time.perf_counter() - t0
+    return res
+
+
+def extract_from_panorama(pano: Panorama | str | os.PathLike, *,
+                          options: ExtractionOptions = ExtractionOptions()) -> ExtractionResult:
+    """Detect the skyline of a panorama (folder or object) and sample it on the skyline azimuth grid."""
+    t0 = time.perf_counter()
+    if not isinstance(pano, Panorama):
+        pano = load_panorama(Path(pano))
+    res = _extract(pano, options)
+    res.elapsed_s = time.perf_counter() - t0
+    log.info("extraction %s in %.2f s: %s", res.status, res.elapsed_s, res.reason)
+    return res
+
+
+def _failed(reason: str, pano: Panorama, det: Detection | None = None, diag: dict | None = None) -> ExtractionResult:
+    conf = det.confidence if det is not None else np.zeros(0)
+    return ExtractionResult(None, STATUS_FAILED, reason, conf, pano, det, diagnostics=diag or {})
+
+
+def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
+    geom = pano.geometry
+    grey, _ = to_grey01(pano.image)
+    seen = pano.seen if pano.seen is not None else np.ones(grey.shape, dtype=bool)
+    if not seen.any():
+        return _failed("nothing seen: no frame covers the panorama (check the frames and the pan/tilt angles)", pano)
+    vals = grey[seen]
+    frac_black = float(np.mean(vals <= opt.black_level))
+    frac_sat = float(np.mean(vals >= opt.saturation_level))
+    diag = {"black_fraction": frac_black, "saturated_fraction": frac_sat}
+    if geom.kind != "binary":
+        if frac_black >= opt.bad_pixel_fraction:
+            return _failed(f"black picture: {100 * frac_black:.0f}% of the seen pixels are below "
+                           f"{100 * opt.black_level:.0f}% of full scale (lens cap, night or exposure far too short)",
+                           pano, diag=diag)
+        if frac_sat >= opt.bad_pixel_fraction:
+            return _failed(f"over-exposed picture: {100 * frac_sat:.0f}% of the seen pixels are saturated "
+                           "(shorten the exposure)", pano, diag=diag)
+    det = detect_skyline(pano.image, seen=seen, wrap=geom.is_full_circle, params=opt.detector)
+    diag.update(det.diagnostics)
+    sep = det.diagnostics.get("separation", 0.0)
+    seen_cols = seen.any(axis=0)
+    if sep < opt.min_separation or det.diagnostics.get("reason") == "one class only":
+        kind = _uniform_kind(grey, seen)
+        return _failed(f"{kind}: the picture has no sky/ground contrast (separation {sep:.2f} < "
+                       f"{opt.min_separation})", pano, det, diag)
+    top = det.diagnostics["line_at_top_fraction"]
+    bottom = det.diagnostics["line_at_bottom_fraction"]
+    if top >= 0.9:
+        return _failed(f"all ground: the line sits at the top of the view in {100 * top:.0f}% of the columns "
+                       "(tilt the camera up)", pano, det, diag)
+    if bottom >= 0.9:
+        return _failed(f"all sky: the line sits at the bottom of the view in {100 * bottom:.0f}% of the columns "
+                       "(tilt the camera down)", pano, det, diag)
+    skyline = panorama_line_to_skyline(det.line_row, geom, n_azimuth=opt.n_azimuth,
+                                       azimuth_start_deg=opt.azimuth_start_deg)
+    kept = float(det.valid[seen_cols].mean()) if seen_cols.any() else 0.0
+    if skyline.coverage_deg < opt.min_coverage_deg:
+        return _failed(f"too few confident columns: {skyline.coverage_deg:.0f} deg of azimuth kept, "
+                       f"{opt.min_coverage_deg:.0f} needed ({100 * kept:.0f}% of the seen columns confident)",
+                       pano, det, diag)
+    meta = {"source": "skyloc extract", "azimuth_reference": geom.azimuth_reference,
+            "panorama_step_deg": geom.azimuth_step_deg, "kept_column_fraction": round(kept, 4)}
+    if pano.mast_height_m is not None:
+        meta["mast_height_m"] = pano.mast_height_m
+    skyline = Skyline(skyline.elevation_deg, skyline.azimuth_start_deg, skyline.azimuth_step_deg, meta)
+    if kept >= opt.min_ok_fraction:
+        status, reason = STATUS_OK, f"{100 * kept:.0f}% of the seen columns kept"
+    else:
+        status, reason = STATUS_DEGRADED, (f"only {100 * kept:.0f}% of the seen columns are confident "
+                                           "(low contrast, glare or saturation); the rest are masked")
+    meta["status"] = status
+    return ExtractionResult(skyline, status, reason, det.confidence, pano, det, diagnostics=diag)
+
+
+def _uniform_kind(grey: np.ndarray, seen: np.ndarray) -> str:
+    """'all sky' for a smooth picture, 'all ground' for a textured one (no sky/ground split either way)."""
+    import cv2
+
+    hp = grey - cv2.GaussianBlur(grey, (0, 0), 2.0)
+    # texture relative to pixel noise: noise is spatially white, so it mostly survives a 1-px high-pass too
+    fine = grey - cv2.GaussianBlur(grey, (0, 0), 0.7)
+    texture = float(np.std(hp[seen]))
+    noise = float(np.std(fine[seen])) + 1e-4
+    return "all ground" if texture > 2.0 * noise and texture > 0.01 else "all sky"
+
+
+def panorama_line_to_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int = DEFAULT_N_AZIMUTH,
+                             azimuth_start_deg: float = 0.0) -> Skyline:
+    """Sample a per-column line (continuous rows, NaN = masked) as a Skyline.
+
+    Sample ``j`` is the elevation at azimuth ``azimuth_start_deg + j * 360 / n_azimuth`` exactly,
+    interpolated linearly between the two panorama columns around it; NaN if either is NaN or the
+    azimuth is outside a partial panorama.
+    """
+    el_col = geom.el_of_row(np.asarray(line_row, dtype=np.float64))
+    az = azimuth_grid_deg(n_azimuth, azimuth_start_deg)
+    x = geom.col_of_az(az)
+    W = geom.width
+    c0 = np.floor(x).astype(np.int64)
+    t = x - c0
+    if geom.is_full_circle:
+        e0 = el_col[np.mod(c0, W)]
+        e1 = el_col[np.mod(c0 + 1, W)]
+    else:
+        inside = (c0 >= 0) & (c0 + 1 <= W - 1) | ((c0 == W - 1) & (t == 0))
+        e0 = np.where(inside, el_col[np.clip(c0, 0, W - 1)], np.nan)
+        e1 = np.where(inside, el_col[np.clip(c0 + 1, 0, W - 1)], np.nan)
+    el = np.where(t == 0, e0, (1.0 - t) * e0 + t * e1)
+    return Skyline(el, float(azimuth_start_deg), 360.0 / n_azimuth, {"azimuth_reference": geom.azimuth_reference})
