@@ -27,6 +27,7 @@ Positions are continuous row coordinates with the centre of the top pixel at 0: 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,7 +42,7 @@ log = logging.getLogger(__name__)
 class DetectorParams:
     """Tuning of :func:`detect_skyline` (dimensionless unless stated)."""
 
-    blur_sigma_px: float = 1.0          # Gaussian blur before features and steps, pixels
+    blur_sigma_px: float = 1.0          # vertical Gaussian blur before features and steps, pixels
     texture_window_px: int = 7          # texture window height (one-sided, one column wide), pixels
     region_scale_px: float = 6.0        # misclassified pixels worth one unit of cost
     region_cap: float = 4.0             # cap of the region cost (keeps far rows from dominating)
@@ -134,7 +135,12 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     H, W = grey.shape
     seen = seen_or_all(seen, (H, W))
     P = params
-    blur = cv2.GaussianBlur(grey, (0, 0), P.blur_sigma_px) if P.blur_sigma_px > 0 else grey
+    # vertical-only blur: a horizontal one would smear steep slopes into ramps and bias the line
+    if P.blur_sigma_px > 0:
+        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
+        blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
+    else:
+        blur = grey
     tex = np.log(_texture(grey, P.texture_window_px) + 1e-3)
     seen_f = seen.astype(np.float32)
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
@@ -211,10 +217,10 @@ def _empty(W: int, diag: dict) -> Detection:
 
 
 def _subpixel(step: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Line position: the strongest step within +-2 rows of ``b``, refined by a parabola (rows)."""
+    """Line position: the strongest step within +-1 row of ``b``, refined by a parabola (rows)."""
     H, W = step.shape
     cols = np.arange(W)
-    offs = np.arange(-2, 3)
+    offs = np.arange(-1, 2)
     cand = np.clip(b[None, :] + offs[:, None], 1, H - 1)
     s = step[cand, cols[None, :]]
     k = np.argmax(s, axis=0)
@@ -262,11 +268,14 @@ def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndar
     fs, ns = _window_mean(sky_like, sf, b, -R, 0)
     fg, ng = _window_mean(1.0 - sky_like, sf, b, 0, R)
     c_region = np.minimum(np.clip((fs - 0.6) / 0.3, 0, 1), np.clip((fg - 0.45) / 0.3, 0, 1))
-    sat = (grey >= P.saturation_level).astype(np.float32)
-    fsat, _ = _window_mean(sat, sf, b, -w, w)
-    dark = (grey <= 1.0 - P.saturation_level).astype(np.float32)
-    fdark, _ = _window_mean(dark, sf, b, -w, w)
-    c_sat = 1.0 - np.clip(np.maximum(fsat, fdark) / 0.5, 0, 1)
+    # clipped on both sides of the line (glare, over-exposure, crushed blacks): the step is not measurable.
+    # One clipped side is fine (a black lunar sky, a saturated sky over lit ground).
+    c_sat = np.ones(b.shape)
+    for clipped in (grey >= P.saturation_level, grey <= 1.0 - P.saturation_level):
+        c = clipped.astype(np.float32)
+        f_above, _ = _window_mean(c, sf, b, -w, 0)
+        f_below, _ = _window_mean(c, sf, b, 0, w)
+        c_sat = np.minimum(c_sat, 1.0 - np.clip(np.minimum(f_above, f_below) / 0.5, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f",
