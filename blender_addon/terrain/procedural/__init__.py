@@ -110,19 +110,16 @@ def generate(preset: str, *, size_m: float, res_m: float, seed: int) -> np.ndarr
                                     wavelength_max_m=min(size, 2000.0), beta=p.relief_beta)
     z += p.hills_m * spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=max(4 * res_m, 400.0),
                                     wavelength_max_m=max(span, 2000.0), beta=3.5)
-    # ridges: crests of a ridged field, present where a slow mask says so
-    ridge_f = spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=max(4 * res_m, 150.0),
-                             wavelength_max_m=max(span / 2, 1000.0), beta=3.0)
+    # ridges: a ridged multifractal (Musgrave) of three octaves, present where a slow mask says so
     ridge_mask = smooth_mask(spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=max(4 * res_m, 2000.0),
-                                            wavelength_max_m=max(span, 4000.0), beta=3.0), threshold=-0.3, width=1.2)
+                                            wavelength_max_m=max(span, 4000.0), beta=3.0), threshold=-0.2, width=1.2)
     if p.ridge_m:
-        z += p.ridge_m * ridge_mask * ridged(ridge_f, sharpness=3.0)
-    del ridge_f
-    # valleys: V-shaped troughs along the zero lines of another field
-    valley_f = spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=max(4 * res_m, 300.0),
-                              wavelength_max_m=max(span, 3000.0), beta=3.2)
+        z += p.ridge_m * ridge_mask * ridged_multifractal(shape, rng, res_m=res_m, span=span)
+    # valleys: smooth sinuous troughs along the zero lines of a slow field, away from the ridges
+    valley_f = spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=max(4 * res_m, 1200.0),
+                              wavelength_max_m=max(span, 6000.0), beta=3.5)
     if p.valley_m:
-        z -= p.valley_m * (1.0 - ridge_mask) * ridged(valley_f * 1.5, sharpness=4.0)
+        z -= p.valley_m * (1.0 - ridge_mask) * ridged(valley_f * 2.5, sharpness=3.0)
     del valley_f, ridge_mask
 
     if p.icy:
@@ -156,6 +153,26 @@ def generate(preset: str, *, size_m: float, res_m: float, seed: int) -> np.ndarr
     n_boulders = int(p.boulders_per_km2 * size * size / 1e6)
     _features.add_blocks(z, rng, cell_m=res_m, count=n_boulders, h_min_m=p.boulder_h_m[0], h_max_m=p.boulder_h_m[1])
     return z.astype(np.float32, copy=False)
+
+
+def ridged_multifractal(shape: tuple[int, int], rng: np.random.Generator, *, res_m: float, span: float) -> np.ndarray:
+    """Ridged multifractal in [0, ~1.6]: sharp crests whose finer octaves grow only on the coarser crests.
+
+    Octave wavelengths (m): 1.5-8 km, 400 m-1.5 km, 100-400 m (never below 4 cells).
+    """
+    bands = ((1500.0, 8000.0), (400.0, 1500.0), (100.0, 400.0))
+    total = np.zeros(shape, np.float32)
+    weight = np.ones(shape, np.float32)
+    gain = 1.0
+    for lo, hi in bands:
+        lo = max(lo, 4 * res_m)
+        hi = max(min(hi, span), 2 * lo)
+        sig = ridged(spectral_field(shape, rng, cell_m=res_m, wavelength_min_m=lo, wavelength_max_m=hi, beta=3.0),
+                     sharpness=2.0) * weight
+        total += gain * sig
+        weight = np.clip(sig * 2.0, 0.0, 1.0)
+        gain *= 0.45
+    return total
 
 
 def _icy_features(z: np.ndarray, rng: np.random.Generator, *, res_m: float, size: float) -> None:

@@ -66,16 +66,18 @@ def spectral_field(
 
 
 def _bilinear_grid(a: np.ndarray, ry: np.ndarray, rx: np.ndarray) -> np.ndarray:
-    """Sample ``a`` bilinearly on the outer product of fractional row/col coordinates."""
-    r0 = np.floor(ry).astype(np.int64)
+    """Sample ``a`` bilinearly on the outer product of fractional row/col coordinates (separable: columns, then rows)."""
     c0 = np.floor(rx).astype(np.int64)
-    r1 = np.minimum(r0 + 1, a.shape[0] - 1)
     c1 = np.minimum(c0 + 1, a.shape[1] - 1)
-    fy = (ry - r0).astype(np.float32)[:, None]
     fx = (rx - c0).astype(np.float32)[None, :]
-    top = a[r0][:, c0] * (1 - fx) + a[r0][:, c1] * fx
-    bot = a[r1][:, c0] * (1 - fx) + a[r1][:, c1] * fx
-    return top * (1 - fy) + bot * fy
+    cols_done = a[:, c0] * (1 - fx) + a[:, c1] * fx  # (coarse rows, fine cols): small
+    r0 = np.floor(ry).astype(np.int64)
+    r1 = np.minimum(r0 + 1, a.shape[0] - 1)
+    fy = (ry - r0).astype(np.float32)[:, None]
+    out = cols_done[r0]
+    out *= 1 - fy
+    out += cols_done[r1] * fy
+    return out
 
 
 def ridged(field: np.ndarray, *, sharpness: float = 2.0) -> np.ndarray:
