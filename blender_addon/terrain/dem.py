@@ -162,7 +162,7 @@ def file_sha256(path: str | os.PathLike) -> str:
     if key not in _SHA_CACHE:
         h = hashlib.sha256()
         with open(p, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 22), b""):
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
                 h.update(chunk)
         _SHA_CACHE[key] = h.hexdigest()
     return _SHA_CACHE[key]
@@ -314,6 +314,18 @@ def snap_window(src: MetricSource, bounds: tuple[float, float, float, float]) ->
     return c0, r0, c1 - c0, r1 - r0
 
 
+def available_memory_bytes() -> int | None:
+    """Memory available to this process (Linux MemAvailable), or None when unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
 def read_dem(
     path: str | os.PathLike,
     *,
@@ -344,6 +356,13 @@ def read_dem(
         c0, r0, nc, nr = 0, 0, cols, rows
     else:
         c0, r0, nc, nr = snap_window(src, bounds)
+    avail = available_memory_bytes()
+    if avail is not None and nc * nr * 4 * 2 > avail:
+        raise DemReadError(
+            f"{path}: reading {nc} x {nr} cells ({nc * nr * 4 / 1e9:.1f} GB as float32) would not fit in the "
+            f"{avail / 1e9:.1f} GB of memory available: read a window with bounds=(xmin, ymin, xmax, ymax), or build "
+            "a multi-resolution terrain (skyloc dem prepare), which reads by windows"
+        )
     if nc * nr > max_cells:
         raise DemReadError(
             f"{path}: reading {nc} x {nr} cells ({nc * nr * 4 / 1e9:.1f} GB as float32) exceeds max_cells={max_cells}: "

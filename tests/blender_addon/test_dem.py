@@ -174,16 +174,30 @@ def _utm_wkt():
     return srs.ExportToWkt()
 
 
-def test_projected_integer_values_and_nodata(tmp_path):
+@pytest.mark.parametrize("dtype, gdt", [(np.int16, gdal.GDT_Int16), (np.int32, gdal.GDT_Int32),
+                                         (np.float64, gdal.GDT_Float64), (np.float32, gdal.GDT_Float32)])
+def test_projected_values_and_nodata(tmp_path, dtype, gdt):
     rng = np.random.default_rng(3)
-    z = rng.integers(100, 3000, (40, 50)).astype(np.int16)
+    z = rng.integers(100, 3000, (40, 50)).astype(dtype)
     z[0, :5] = -9999  # edge nodata (footprint edge): stays NaN
     path = write_tif(tmp_path / "int.tif", z, (500000.0, 30.0, 0, 4e6, 0, -30.0), _utm_wkt(), nodata=-9999,
-                     dtype=gdal.GDT_Int16)
+                     dtype=gdt)
     dem = read_dem(path)
     assert dem.array.dtype == np.float32 and dem.body.name == "earth"
     assert np.isnan(dem.array[0, :5]).all()
     np.testing.assert_array_equal(dem.array[1:], z[1:].astype(np.float32))
+
+
+def test_unsigned_and_scaled_band(tmp_path):
+    """UInt16 counts with a band scale/offset (e.g. 0.5 m steps from -1000 m) become metres."""
+    z = np.arange(12 * 10, dtype=np.uint16).reshape(12, 10) + 1000
+    path = write_tif(tmp_path / "u16.tif", z, (0.0, 10.0, 0, 120.0, 0, -10.0), _utm_wkt(), dtype=gdal.GDT_UInt16)
+    ds = gdal.Open(str(path), gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.5)
+    ds.GetRasterBand(1).SetOffset(-1000.0)
+    ds = None
+    dem = read_dem(path)
+    np.testing.assert_allclose(dem.array, z * 0.5 - 1000.0)
 
 
 def test_small_hole_filled_large_gap_refused(tmp_path):

@@ -218,3 +218,33 @@ def test_real_moon_levels(real_dem, tmp_path):
     tops = [np.nanmax(lvl.array) for lvl in t.levels]
     assert all(b >= a for a, b in zip(tops, tops[1:]))  # nested maxima never decrease outwards
     assert load_multires(tmp_path / "m").levels[-1].array.shape == t.levels[-1].array.shape
+
+
+@pytest.mark.slow
+def test_large_dem_built_by_windows_in_bounded_memory(tmp_path):
+    """A 4000 x 4000 DEM (64 MB as float32): the levels are built without ever holding it whole
+    (numpy allocations traced), and their maxima still see a peak placed far from the site."""
+    import tracemalloc
+
+    n, cell = 4000, 5.0
+    path = tmp_path / "big.tif"
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), n, n, 1, gdal.GDT_Int16,
+                                              options=["TILED=YES", "COMPRESS=DEFLATE"])
+    ds.SetGeoTransform((0.0, cell, 0.0, n * cell, 0.0, -cell))
+    ds.SetProjection(utm_wkt())
+    band = ds.GetRasterBand(1)
+    rng = np.random.default_rng(8)
+    for r0 in range(0, n, 500):
+        band.WriteArray(rng.integers(0, 50, (500, n)).astype(np.int16), 0, r0)
+    band.WriteArray(np.array([[3000]], np.int16), 3900, 100)  # a peak near the north-east corner
+    ds = None
+    full_bytes = n * n * 4
+    tracemalloc.start()
+    t = build_multires(path, (5000.0, 5000.0), grid_half_m=200.0, azimuth_step_deg=1.0)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < full_bytes / 6
+    last = t.levels[-1]
+    assert last.bounds() == (0.0, 0.0, n * cell, n * cell)
+    assert np.nanmax(last.array) == 3000.0
+    assert np.nanmax(t.levels[0].array) < 50
