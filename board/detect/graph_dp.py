@@ -133,19 +133,24 @@ def shortest_path_dp(node_cost: np.ndarray, *, pair_cost: np.ndarray | None = No
     return PathResult(top, exit_, cost)
 
 
-def _l1_transform(D: np.ndarray, lam: float, idx: np.ndarray, lam_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """min_{r'} D(r') + lam |r - r'| and its argmin, by a forward and a backward prefix minimum."""
+def _l1_transform(D: np.ndarray, lam_fb: np.ndarray, idx2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """min_{r'} D(r') + lam |r - r'| and its argmin, by a forward and a backward prefix minimum.
+
+    lam_fb : (2, H) = (-lam * r, +lam * r reversed); idx2 : (2, H) row indices.  Both sweeps run in
+    one accumulate call on a (2, H) array.
+    """
     H = D.size
-    vf = D - lam_idx
-    rf = np.minimum.accumulate(vf)
-    af = _argmin_so_far(vf, rf, idx)
-    vb = (D + lam_idx)[::-1]
-    rb = np.minimum.accumulate(vb)
-    ab = (H - 1 - _argmin_so_far(vb, rb, idx))[::-1]
-    df = rf + lam_idx
-    db = rb[::-1] - lam_idx
+    v = np.empty((2, H))
+    v[0] = D
+    v[1] = D[::-1]
+    v += lam_fb
+    run = np.minimum.accumulate(v, axis=1)
+    arg = np.maximum.accumulate(np.where(v <= run, idx2, 0), axis=1)
+    df = run[0] - lam_fb[0]
+    db = (run[1] - lam_fb[1])[::-1]
+    ab = (H - 1 - arg[1])[::-1]
     use_b = db < df
-    return np.where(use_b, db, df), np.where(use_b, ab, af)
+    return np.where(use_b, db, df), np.where(use_b, ab, arg[0])
 
 
 def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = False, margin: int = 200,
@@ -168,11 +173,13 @@ def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = Fa
     n = cols.size
     idx = np.arange(H)
     lam_idx = jump_cost * idx.astype(np.float64)
+    lam_fb = np.stack([-lam_idx, lam_idx[::-1]])
+    idx2 = np.stack([idx, idx])
     pred = np.empty((n, H), dtype=np.int16 if H < 32767 else np.int32)
     D = nodeT[0].astype(np.float64)
     pred[0] = idx
     for k in range(1, n):
-        T, a = _l1_transform(D, jump_cost, idx, lam_idx)
+        T, a = _l1_transform(D, lam_fb, idx2)
         D = T + nodeT[k]
         pred[k] = a
     r = int(np.argmin(D))

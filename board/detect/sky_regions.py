@@ -96,9 +96,14 @@ def _texture(grey: np.ndarray, win: int) -> np.ndarray:
 
 
 def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
+    """Robust centre and spread (median, 1.4826 MAD) of a class, the spread floored; subsampled when large."""
     if values.size < 10:
         return float("nan"), floor
-    return float(np.mean(values)), max(float(np.std(values)), floor)
+    if values.size > 200_000:
+        values = values[:: values.size // 200_000]
+    med = float(np.median(values))
+    mad = 1.4826 * float(np.median(np.abs(values - med)))
+    return med, max(mad, floor)
 
 
 def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float]

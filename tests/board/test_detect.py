@@ -1,0 +1,198 @@
+"""Skyline detectors on analytic panoramas (known skyline function), and the DP solvers against
+independent shortest-path implementations."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from board.acquisition import PanoramaGeometry
+from board.detect import detect_baseline, detect_skyline
+from board.detect.baseline import baseline_graph
+from board.detect.graph_dp import shortest_path_dp, shortest_path_l1
+from board.detect.sky_regions import _drop_short_runs
+from board.synthetic import SceneLook, SkylineFunction, synth_panorama
+
+GEOM = PanoramaGeometry.full_circle(1200, 300, elevation_top_deg=30.0, elevation_bottom_deg=-15.0)
+
+
+def _u8(img):
+    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _truth_rows(f, geom=GEOM):
+    return geom.row_of_el(f(geom.azimuths_deg()))
+
+
+# -- solvers ------------------------------------------------------------------------------------
+def _dijkstra_reference(node, pair, vert):
+    """The report's way: Dijkstra over the explicit graph (scipy), source before column 0, sink after the last."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    H, W = node.shape
+    N = H * W
+    src, dst, w = [], [], []
+    for c in range(W):
+        for r in range(H):
+            if c == 0:
+                src.append(N), dst.append(r * W), w.append(node[r, 0])
+            if c == W - 1:
+                src.append(r * W + c), dst.append(N + 1), w.append(1e-12)
+            if c > 0:
+                for d in (-1, 0, 1):
+                    if 0 <= r + d < H:
+                        src.append((r + d) * W + c - 1), dst.append(r * W + c), w.append(pair[d + 1, r, c] + node[r, c])
+            if r > 0:
+                src.append((r - 1) * W + c), dst.append(r * W + c), w.append(vert[r, c] + node[r, c])
+                src.append(r * W + c), dst.append((r - 1) * W + c), w.append(vert[r, c] + node[r - 1, c])
+    G = coo_matrix((w, (src, dst)), shape=(N + 2, N + 2)).tocsr()
+    return dijkstra(G, indices=N)[N + 1]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dp_equals_dijkstra_on_the_same_graph(seed):
+    pytest.importorskip("scipy")
+    rng = np.random.default_rng(seed)
+    H, W = 9, 11
+    node, pair, vert = rng.random((H, W)), rng.random((3, H, W)), rng.random((H, W))
+    res = shortest_path_dp(node, pair_cost=pair, vert_cost=vert)
+    assert res.cost == pytest.approx(_dijkstra_reference(node, pair, vert), abs=1e-4)
+    # the returned path has that cost
+    rows_exit = res.rows_exit
+    assert np.all(np.abs(np.diff(rows_exit)) <= H)
+
+
+def test_dp_equals_dijkstra_on_the_report_graph():
+    pytest.importorskip("scipy")
+    f = SkylineFunction.random(4)
+    g = PanoramaGeometry.full_circle(60, 24, elevation_top_deg=15, elevation_bottom_deg=-5)
+    img = _u8(synth_panorama(g, f, noise_sigma=0.02, seed=4))
+    gr = baseline_graph(img)
+    res = shortest_path_dp(gr.node, pair_cost=gr.pair, vert_cost=gr.vert)
+    assert res.cost == pytest.approx(_dijkstra_reference(gr.node, gr.pair, gr.vert), rel=1e-5)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_l1_path_equals_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    H, W = 5, 5
+    node = rng.random((H, W))
+    lam = float(rng.uniform(0, 0.6))
+    res = shortest_path_l1(node, jump_cost=lam)
+    best = min((sum(node[r[c], c] for c in range(W)) + lam * sum(abs(r[c] - r[c - 1]) for c in range(1, W)), r)
+               for r in itertools.product(range(H), repeat=W))
+    assert res.cost == pytest.approx(best[0], abs=1e-5)
+    assert tuple(res.rows_top) == best[1]
+
+
+def test_wrapped_path_closes_the_circle():
+    # a cost valley that is a sinusoid over the circle: the wrapped path must follow it across the seam
+    H, W = 60, 400
+    c = np.arange(W)
+    valley = (30 + 20 * np.sin(2 * np.pi * c / W + 1.0)).round().astype(int)
+    node = np.abs(np.arange(H)[:, None] - valley[None, :]).astype(float)
+    res = shortest_path_l1(node, jump_cost=0.3, wrap=True, margin=50)
+    np.testing.assert_array_equal(res.rows_top, valley)
+
+
+# -- detectors --------------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_clean_panorama_within_one_pixel(seed):
+    f = SkylineFunction.random(seed)
+    img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=seed))
+    det = detect_skyline(img, wrap=True)
+    err = det.line_row - _truth_rows(f)
+    assert det.valid.mean() >= 0.98
+    assert np.nanmean(np.abs(err)) <= 0.5
+    assert np.nanmax(np.abs(err)) <= 2.0
+
+
+@pytest.mark.parametrize("look,name", [(SceneLook(sky_top=0.03, sky_horizon=0.03, ground=0.5), "black sky (Moon)"),
+                                       (SceneLook(sky_top=0.35, sky_horizon=0.3, ground=0.75, texture=0.1),
+                                        "sky darker than ground")])
+def test_polarity_is_learnt_from_the_picture(look, name):
+    f = SkylineFunction.random(21)
+    img = _u8(synth_panorama(GEOM, f, look=look, noise_sigma=0.01, seed=2))
+    det = detect_skyline(img, wrap=True)
+    err = det.line_row - _truth_rows(f)
+    assert det.valid.mean() >= 0.95, name
+    assert np.nanmean(np.abs(err)) <= 0.6, name
+
+
+def test_binary_panorama_half_pixel():
+    f = SkylineFunction.random(5)
+    g = GEOM
+    el = g.elevations_deg()[:, None]
+    terrain = el < f(g.azimuths_deg())[None, :]              # pixel-centre sampling, no anti-aliasing
+    det = detect_skyline(terrain.astype(np.uint8) * 255, wrap=True)
+    err = det.line_row - _truth_rows(f)
+    assert det.valid.mean() >= 0.99
+    assert np.nanmax(np.abs(err)) <= 0.75   # the line lies between two pixel centres: <= half a pixel + slack
+
+
+def test_noise_and_dust_masked_rather_than_wrong():
+    f = SkylineFunction.random(31)
+    look = SceneLook(dust=((40.0, 120.0, 0.9),))
+    img = _u8(synth_panorama(GEOM, f, look=look, noise_sigma=0.04, seed=3))
+    det = detect_skyline(img, wrap=True)
+    err = det.line_row - _truth_rows(f)
+    az = GEOM.azimuths_deg()
+    dusty = (az > 45) & (az < 115)
+    clear = (az < 35) | (az > 125)
+    assert det.valid[clear].mean() >= 0.95
+    assert det.valid[dusty].mean() <= 0.2          # doubtful sector masked
+    assert np.nanmean(np.abs(err)) <= 1.0          # what is kept is right
+    assert np.nanmax(np.abs(err)) <= 3.0
+
+
+def test_glare_sector_masked():
+    f = SkylineFunction.random(41)
+    img = synth_panorama(GEOM, f, noise_sigma=0.02, seed=4)
+    img[:, 200:330] = np.clip(img[:, 200:330] * 3.0, 0, 1)    # both sides of the line saturate
+    det = detect_skyline(_u8(img), wrap=True)
+    assert det.valid[210:320].mean() <= 0.1
+    err = det.line_row - _truth_rows(f)
+    assert np.nanmax(np.abs(err)) <= 3.0
+
+
+def test_unseen_columns_are_never_given_a_line():
+    f = SkylineFunction.random(51)
+    img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=5))
+    seen = np.ones(img.shape, bool)
+    seen[:, 500:800] = False
+    img[~seen] = 0
+    det = detect_skyline(img, seen=seen, wrap=True)
+    assert not det.valid[500:800].any()
+    err = det.line_row - _truth_rows(f)
+    assert np.nanmean(np.abs(err)) <= 0.5
+
+
+def test_line_above_the_view_is_masked():
+    # the panorama's top cuts through the terrain in a sector: no sky seen there, the line is doubtful
+    f = SkylineFunction(3.0, ((1, 1.0, 0.0),), ((180.0, 40.0, 20.0),))
+    img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=6))
+    det = detect_skyline(img, wrap=True)
+    az = GEOM.azimuths_deg()
+    hidden = f(az) > 30.0 - GEOM.elevation_step_deg    # skyline at or above the top row there
+    assert not det.valid[hidden].any()
+    err = det.line_row - _truth_rows(f)
+    assert np.nanmax(np.abs(err)) <= 2.0
+
+
+def test_baseline_runs_the_report_method():
+    # on a high-contrast scene without texture the report's graph finds the line too
+    f = SkylineFunction.random(61, amplitude_deg=2.0, n_peaks=0)
+    img = _u8(synth_panorama(GEOM, f, look=SceneLook(texture=0.0), noise_sigma=0.0))
+    rows = detect_baseline(img, wrap=True)
+    assert rows.shape == (GEOM.width,)
+    assert np.median(np.abs(rows - _truth_rows(f))) <= 1.5
+
+
+def test_drop_short_runs_wraps():
+    v = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1, 0, 1, 1], bool)
+    out = _drop_short_runs(v, 3, wrap=True)
+    np.testing.assert_array_equal(out, [1, 1, 0, 0, 0, 0, 1, 1, 1, 0, 1, 1])
+    out = _drop_short_runs(v, 3, wrap=False)
+    np.testing.assert_array_equal(out, [0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0])
