@@ -173,16 +173,16 @@ def build_panorama(acq: Acquisition | str, *, azimuth_step_deg: float | None = N
 def refine_pan_angles(images: list[np.ndarray], camera: CameraModel, pans: np.ndarray, tilts: np.ndarray,
                       geom: PanoramaGeometry, *, pitch_deg: float = 0.0, roll_deg: float = 0.0,
                       pan_sigma_deg: float = 1.0, max_correction_deg: float = 3.0,
-                      min_response: float = 0.1, min_overlap_columns: int = 16) -> np.ndarray:
+                      min_response: float = 0.5, min_overlap_columns: int = 16) -> np.ndarray:
     """Per-frame pan corrections (degrees) from the azimuth shifts between overlapping frames.
 
     Each overlapping pair gives ``corr_j - corr_i = shift``; the corrections minimise
     ``sum (corr_j - corr_i - shift)^2 / s_m^2 + sum corr_i^2 / pan_sigma_deg^2`` (s_m = a quarter
-    pixel), i.e. the unit's angles are the prior.  Pairs whose correlation peak is weak or
-    beyond ``max_correction_deg`` are ignored.
+    pixel), i.e. the unit's angles are the prior.  The shift of a pair minimises the mean squared
+    difference of the overlap (integer search within ``max_correction_deg``, parabola to sub-pixel);
+    pairs whose minimum is not distinct (``min_response``: relative rise of the error one pixel
+    away) or lies on the search border are ignored.
     """
-    import cv2
-
     n = len(images)
     warps = []
     for i in range(n):
@@ -206,20 +206,18 @@ def refine_pan_angles(images: list[np.ndarray], camera: CameraModel, pans: np.nd
             order = np.argsort(np.mod(common - common[0] + geom.width // 2, geom.width))
             a = gi[rws][:, ii[order]]
             b = gj[rws][:, jj[order]]
-            m = both[rws][:, order].astype(np.float32)
-            a = (a - (a * m).sum() / m.sum()) * m
-            b = (b - (b * m).sum() / m.sum()) * m
-            win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
-            (dx, dy), resp = cv2.phaseCorrelate(a.astype(np.float32), b.astype(np.float32), win)
-            shift_deg = -dx * geom.azimuth_step_deg
-            if resp < min_response or abs(shift_deg) > max_correction_deg:
-                log.debug("frames %d-%d: shift %.3f deg, response %.2f: ignored", i, j, shift_deg, resp)
+            m = both[rws][:, order]
+            max_shift = int(math.ceil(max_correction_deg / geom.azimuth_step_deg))
+            shift_px, contrast = _masked_shift(a, b, m, max_shift)
+            shift_deg = -shift_px * geom.azimuth_step_deg     # b shows a frame at -e_j: corr_j - corr_i = -shift
+            if not np.isfinite(shift_px) or contrast < min_response:
+                log.debug("frames %d-%d: no reliable shift (contrast %.2f): ignored", i, j, contrast)
                 continue
             row = np.zeros(n)
             row[i], row[j] = -1.0, 1.0
             rows_eq.append(row)
             rhs.append(shift_deg)
-            log.debug("frames %d-%d: relative yaw %.3f deg (response %.2f)", i, j, shift_deg, resp)
+            log.debug("frames %d-%d: relative yaw %.3f deg (contrast %.2f)", i, j, shift_deg, contrast)
     if not rows_eq:
         log.info("yaw refinement: no overlap could be matched; the pan-tilt angles are kept")
         return np.zeros(n)
@@ -229,3 +227,29 @@ def refine_pan_angles(images: list[np.ndarray], camera: CameraModel, pans: np.nd
     corr, *_ = np.linalg.lstsq(A, y, rcond=None)
     log.info("yaw refinement: %d pairs, corrections %s deg", len(rhs), np.round(corr, 3).tolist())
     return corr
+
+
+def _masked_shift(a: np.ndarray, b: np.ndarray, mask: np.ndarray, max_shift: int) -> tuple[float, float]:
+    """Column shift ``s`` (pixels, sub-pixel) such that ``b[:, c + s] ~ a[:, c]`` on ``mask``, and the
+    relative rise of the error one pixel away from the minimum (distinctiveness).  NaN when unreliable."""
+    n = a.shape[1]
+    shifts = np.arange(-max_shift, max_shift + 1)
+    err = np.full(shifts.size, np.inf)
+    for k, s in enumerate(shifts):
+        lo, hi = max(0, -s), min(n, n - s)
+        if hi - lo < 8:
+            continue
+        m = mask[:, lo:hi] & mask[:, lo + s:hi + s]
+        cnt = m.sum()
+        if cnt < 50:
+            continue
+        d = (a[:, lo:hi] - b[:, lo + s:hi + s])[m]
+        err[k] = float(np.mean(d * d))
+    k = int(np.argmin(err))
+    if not np.isfinite(err[k]) or k == 0 or k == shifts.size - 1 or not np.isfinite(err[k - 1] + err[k + 1]):
+        return float("nan"), 0.0
+    e0, e1, e2 = err[k - 1], err[k], err[k + 1]
+    den = e0 - 2.0 * e1 + e2
+    frac = 0.5 * (e0 - e2) / den if den > 0 else 0.0
+    contrast = float(min(e0, e2) / max(e1, 1e-12) - 1.0)
+    return float(shifts[k] + np.clip(frac, -0.5, 0.5)), contrast
