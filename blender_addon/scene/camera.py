@@ -74,7 +74,8 @@ def place_camera(x: float, y: float, z: float, heading_deg: float, pitch_deg: fl
         scene.collection.objects.link(obj)
     obj.matrix_world = Matrix(camera_world_matrix(x, y, z, heading_deg, pitch_deg, roll_deg, scene=scene).tolist())
     obj["skyloc_pose"] = [x, y, z, heading_deg, pitch_deg, roll_deg]
-    scene.camera = obj
+    if scene.camera != obj:          # assigning, even the same camera, forces a full Cycles resync
+        scene.camera = obj
     return obj
 
 

@@ -54,6 +54,8 @@ def _binary_material() -> bpy.types.Material:
         em.inputs["Strength"].default_value = 1.0
         out = nt.nodes.new("ShaderNodeOutputMaterial")
         nt.links.new(em.outputs["Emission"], out.inputs["Surface"])
+    # Not a light: otherwise Cycles builds a light tree over every terrain triangle at each render.
+    mat.cycles.emission_sampling = "NONE"
     return mat
 
 
@@ -85,6 +87,7 @@ def configure_binary(scene: bpy.types.Scene | None = None, *, samples: int = 1) 
     c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = c.volume_bounces = 0
     c.transparent_max_bounces = 0
     c.caustics_reflective = c.caustics_refractive = False
+    c.use_light_tree = False
     c.seed = 0
     c.use_animated_seed = False
     scene.render.film_transparent = False
@@ -129,7 +132,8 @@ def _camera(scene: bpy.types.Scene, camera: bpy.types.Object | None) -> bpy.type
     cam = camera or scene.camera or bpy.data.objects.get(CAMERA_NAME)
     if cam is None:
         raise InvalidInputError("no camera in the scene: call blender_addon.scene.place_camera first")
-    scene.camera = cam
+    if scene.camera != cam:          # assigning, even the same camera, forces a full Cycles resync
+        scene.camera = cam
     return cam
 
 

@@ -13,7 +13,8 @@ from typing import Callable
 import bpy  # noqa: TID251 (scene building is the bpy layer)
 import numpy as np
 
-from blender_addon.core.terrain_mesh import MeshChunk, SceneOffset, default_offset, terrain_chunks
+from blender_addon.core.terrain_mesh import (MeshChunk, SceneOffset, default_offset, refine_near_field,
+                                              terrain_chunks)
 from blender_addon.scene import state
 from blender_addon.terrain.model import MultiResTerrain
 
@@ -73,7 +74,8 @@ def clear_terrain(scene: bpy.types.Scene | None = None) -> None:
 
 
 def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = None,
-                  offset: SceneOffset | None = None, curvature: bool = True, refraction_k: float = 0.0,
+                  offset: SceneOffset | None = None, curvature: bool = True, radius_m: float | None = None,
+                  refraction_k: float = 0.0, refine_factor: int = 4, refine_half_m: float | None = None,
                   chunk_cells: int = 256, skirt_depth_m: float | None = None,
                   progress: Callable[[float, str], None] | None = None) -> SceneOffset:
     """Build the terrain meshes of every level into the collection ``SkylocTerrain``.
@@ -82,8 +84,10 @@ def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = N
     ----------
     terrain : levels finest first, world coordinates in the DEM's projected CRS (metres)
     offset : world position of the scene origin (default: the site at its ground height)
-    curvature : drop vertices by ``r^2 (1 - k) / 2R`` (R = the terrain's body radius)
+    curvature : drop vertices by ``r^2 (1 - k) / 2R`` (R = ``radius_m``, default the terrain's body radius)
     refraction_k : refraction coefficient (0 on airless bodies)
+    refine_factor, refine_half_m : split level-0 cells near the site into factor x factor quads on
+        the bilinear surface (see :func:`blender_addon.core.terrain_mesh.refine_near_field`; 1: off)
     chunk_cells : at most this many quads a side per object (bounds memory)
     progress : called with (fraction 0..1, message) after each chunk
 
@@ -92,7 +96,7 @@ def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = N
     scene = state.get_scene(scene)
     clear_terrain(scene)
     off = offset if offset is not None else default_offset(terrain)
-    radius = float(terrain.body.radius_m) if curvature else None
+    radius = (float(radius_m) if radius_m else float(terrain.body.radius_m)) if curvature else None
     state.set_offset(off, scene=scene)
     state.set_curvature(radius, refraction_k, scene=scene)
     scene["skyloc_crs_wkt"] = terrain.crs_wkt or ""
@@ -101,6 +105,8 @@ def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = N
     t0 = time.perf_counter()
     n_levels = len(terrain.levels)
     n_verts = n_quads = 0
+    if refine_factor > 1:
+        terrain = refine_near_field(terrain, half_m=refine_half_m, factor=refine_factor)
     chunk: MeshChunk
     for chunk in terrain_chunks(terrain, offset=off, radius_m=radius, refraction_k=refraction_k,
                                 chunk_cells=chunk_cells, skirt_depth_m=skirt_depth_m):

@@ -66,7 +66,7 @@ class RenderTileFn(Protocol):
 #: renderer name -> "module:function" implementing RenderTileFn
 RENDERERS: dict[str, str] = {
     "raymarch": "render_service.renderers.raymarch:render_tile",
-    "blender": "blender_addon.core.skyline_renderer:render_tile",
+    "blender": "blender_addon.skyline_renderer:render_tile",
 }
 
 
