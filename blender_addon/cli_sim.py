@@ -1,0 +1,90 @@
+"""`skyloc sim panorama`: a binary or dressed equirectangular panorama at a rover pose.
+
+The ``sim`` group is created here; H5b's ``cli_sim_acquire`` adds ``acquire`` and ``dataset``.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+
+def _parse_xy(value: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise InvalidInputError(f"--at must be X,Y (two numbers separated by a comma), got {value!r}") from None
+    return x, y
+
+
+@click.group("sim")
+def sim_group() -> None:
+    """Simulator (Blender, headless): panoramas, NavCam acquisitions, test sets."""
+
+
+@sim_group.command("panorama")
+@click.option("--dem", required=True, help="DEM file, or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
+@click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
+@click.option("--crs", default=None, help="CRS of --at when it is not the DEM's (e.g. EPSG:4326).")
+@click.option("--height", "height_m", type=float, default=2.0, show_default=True,
+              help="Camera (mast) height above the ground, metres.")
+@click.option("--heading", "heading_deg", type=float, default=0.0, show_default=True,
+              help="Heading, degrees clockwise from grid north.")
+@click.option("--pitch", "pitch_deg", type=float, default=0.0, show_default=True, help="Pitch, degrees (nose up +).")
+@click.option("--roll", "roll_deg", type=float, default=0.0, show_default=True,
+              help="Roll, degrees (right side down +).")
+@click.option("--width", type=int, default=2048, show_default=True, help="Panorama width, pixels (height = width/2).")
+@click.option("--binary", is_flag=True, help="Terrain white, sky black (the report's noise level 1).")
+@click.option("--preset", type=click.Choice(["clean", "realistic", "distorted"]), default=None,
+              help="Dressed look instead of --binary.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures and noise.")
+@click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples for dressed looks.")
+@click.option("--radius", "radius_m", type=float, default=None,
+              help="Keep terrain up to this distance (m) from the rover (default: the whole DEM).")
+@click.option("--body", default=None, help="Body (earth, mars, moon, europa) or radius in metres, if the DEM lacks it.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output panorama folder.")
+def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_deg: float, pitch_deg: float,
+                 roll_deg: float, width: int, binary: bool, preset: str | None, seed: int, samples: int,
+                 radius_m: float | None, body: str | None, out_dir: str) -> None:
+    """Render an equirectangular panorama at a pose and write it as a panorama folder."""
+    from tqdm import tqdm
+
+    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
+    from blender_addon.terrain.multires import build_multires
+
+    if binary and preset:
+        raise InvalidInputError("--binary and --preset exclude each other: pick one")
+    if not binary and not preset:
+        raise InvalidInputError("choose --binary or --preset clean|realistic|distorted")
+    if height_m < 0:
+        raise InvalidInputError(f"--height must be >= 0 m, got {height_m}")
+    with tqdm(total=3, desc="sim panorama", unit="step", disable=None) as bar:
+        path = resolve_dem(dem)
+        x, y = to_metric_xy(*_parse_xy(at), dem_path=path, crs=crs, body=body)
+        terrain = build_multires(path, (x, y), grid_half_m=max(50.0, 4 * height_m), max_radius_m=radius_m, body=body)
+        bar.update(1)
+        from blender_addon.scene import build_terrain, reset_scene
+        from blender_addon.scene.panorama import PanoramaPose, make_panorama
+
+        reset_scene()
+        build_terrain(terrain)
+        bar.update(1)
+        pose = PanoramaPose(x, y, height_m, heading_deg, pitch_deg, roll_deg)
+        out = make_panorama(terrain, pose, out_dir, width=width, binary=binary, preset=preset, seed=seed,
+                            samples=samples, dem=str(dem), build=False)
+        bar.update(1)
+    click.echo(f"wrote {Path(out)}: {width} x {width // 2} {'binary' if binary else preset} panorama at "
+               f"({x:.2f}, {y:.2f}) m, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
+
+
+def register(group: click.Group) -> None:
+    """Add the ``sim`` group (with ``panorama``) to the root CLI."""
+    if "sim" in group.commands:
+        group.commands["sim"].add_command(panorama_cmd)
+    else:
+        group.add_command(sim_group)

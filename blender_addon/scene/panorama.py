@@ -1,0 +1,137 @@
+"""Panorama products: an equirectangular image at a rover pose, written as a panorama folder.
+
+The panorama is in the mast's frame: column ``c`` of ``W`` is centred on azimuth
+``-180 + (c + 0.5) * 360 / W`` degrees clockwise from the heading (the heading is the image's
+vertical midline) and row ``r`` of ``H`` on elevation ``90 - (r + 0.5) * 180 / H`` above the
+mast's horizontal, so with pitch or roll the terrain/sky boundary is tilted in the image, as a real
+tilted rover would see it.  The folder format is :mod:`board.acquisition`'s (``panorama.json``).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from blender_addon.core.terrain_mesh import sample_height
+from blender_addon.scene import render as R
+from blender_addon.scene import state
+from blender_addon.scene.camera import place_camera
+from blender_addon.scene.terrain import build_terrain
+from blender_addon.terrain.model import MultiResTerrain
+from board.acquisition import GroundTruth, PanoramaGeometry, write_panorama
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PanoramaPose:
+    """Rover pose: x, y metres (terrain CRS), mast height above the ground (m), attitude (degrees)."""
+
+    x: float
+    y: float
+    height_m: float
+    heading_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+
+def panorama_geometry(width: int, *, binary: bool) -> PanoramaGeometry:
+    """Full-sphere geometry of ``width`` x ``width / 2`` pixels, heading in the middle."""
+    if width < 8 or width % 2:
+        raise InvalidInputError(f"panorama width must be an even number >= 8 pixels, got {width}")
+    return PanoramaGeometry.full_circle(width, width // 2, elevation_top_deg=90.0, elevation_bottom_deg=-90.0,
+                                        azimuth_start_deg=-180.0, azimuth_reference="heading",
+                                        kind="binary" if binary else "intensity")
+
+
+def render_binary_panorama(pose: PanoramaPose, *, width: int, path: str | os.PathLike,
+                           terrain: MultiResTerrain | None = None) -> np.ndarray:
+    """Render a binary (terrain 255, sky 0) panorama of the current scene; returns the uint8 image.
+
+    The scene must already hold the terrain (:func:`build_terrain`); ``terrain`` gives the ground
+    height under the rover (default: the camera z is ``pose.height_m`` above the scene origin).
+    """
+    geom = panorama_geometry(width, binary=True)
+    z = _eye_z(pose, terrain)
+    place_camera(pose.x, pose.y, z, pose.heading_deg, pose.pitch_deg, pose.roll_deg)
+    R.configure_binary(samples=1)
+    p = R.render_equirect(path, width=geom.width, height=geom.height)
+    return (R.read_image(p) >= 0.5).astype(np.uint8) * 255
+
+
+def _eye_z(pose: PanoramaPose, terrain: MultiResTerrain | None) -> float:
+    if terrain is None:
+        return state.get_offset().z_m + pose.height_m
+    return sample_height(terrain, pose.x, pose.y) + pose.height_m
+
+
+def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset: str, *, width: int, seed: int,
+                   samples: int, path: Path) -> tuple[np.ndarray, dict]:
+    """Intensity panorama with H5b's dressing (regolith, rocks, sky, sun) and sensor noise."""
+    from blender_addon.core import degrade
+    from blender_addon.scene import dressing
+
+    deg = degrade.get_degradation(preset)
+    info = dressing.dress_scene(terrain, deg, center_xy=(pose.x, pose.y), heading_deg=pose.heading_deg,
+                                seed=seed, samples=samples)
+    place_camera(pose.x, pose.y, _eye_z(pose, terrain), pose.heading_deg, pose.pitch_deg, pose.roll_deg)
+    p = R.render_equirect(path, width=width, height=width // 2, color_mode="RGB", color_depth="16")
+    lin = degrade.decode_render(R.read_image(p))
+    lin = degrade.apply_exposure(lin, deg.sensor.exposure_ev) if deg.sensor.exposure_ev else lin
+    if deg.lens.blur_px > 0:
+        lin = degrade.gaussian_blur(lin, deg.lens.blur_px)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x9A40]))
+    lin = degrade.add_sensor_noise(lin, rng, full_well_e=deg.sensor.full_well_e, read_noise_e=deg.sensor.read_noise_e)
+    img = degrade.quantise(degrade.srgb_encode(lin), deg.sensor.bit_depth)
+    meta = {"preset": preset, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
+            "sun_azimuth_deg": info.sun_azimuth_deg, "sun_elevation_deg": info.sun_elevation_deg,
+            "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
+                    "not to this equirectangular product"}
+    return img, meta
+
+
+def make_panorama(terrain: MultiResTerrain, pose: PanoramaPose, out_dir: str | os.PathLike, *, width: int = 2048,
+                  binary: bool = True, preset: str | None = None, seed: int = 0, samples: int = 16,
+                  dem: str = "", build: bool = True) -> Path:
+    """Build the scene (unless ``build`` is False), render and write a panorama folder atomically.
+
+    binary : the report's noise level 1 (terrain white, sky black); otherwise ``preset``
+        (clean | realistic | distorted, H5b's dressing) gives an intensity image.
+    Returns the folder path.
+    """
+    out = Path(out_dir)
+    if not binary and not preset:
+        raise InvalidInputError("choose --binary or a --preset (clean, realistic, distorted)")
+    if build:
+        state.reset_scene()
+        build_terrain(terrain)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent if out.parent.exists() else None))
+    try:
+        geom = panorama_geometry(width, binary=binary)
+        if binary:
+            img = render_binary_panorama(pose, width=width, path=tmp / "render.png", terrain=terrain)
+            meta = {"preset": "binary", "renderer": "blender-cycles", "samples": 1}
+        else:
+            img, meta = _dressed_image(terrain, pose, str(preset), width=width, seed=seed, samples=samples,
+                                       path=tmp / "render.png")
+        (tmp / "render.png").unlink(missing_ok=True)
+        z = sample_height(terrain, pose.x, pose.y) + pose.height_m
+        truth = GroundTruth(x=pose.x, y=pose.y, heading_deg=pose.heading_deg, z=z, pitch_deg=pose.pitch_deg,
+                            roll_deg=pose.roll_deg, crs=terrain.crs_wkt, dem=dem)
+        meta.update({"seed": int(seed), "body_radius_m": float(terrain.body.radius_m), "curvature": True})
+        write_panorama(tmp, img, geom, mast_height_m=pose.height_m, truth=truth, meta=meta)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    log.info("panorama written to %s", out)
+    return out
