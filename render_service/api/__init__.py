@@ -1,0 +1,1 @@
+"""HTTP layer of the render service (FastAPI routers and their dependencies)."""

@@ -1,0 +1,1 @@
+"""Routers: health, DEM uploads, jobs and the HTML status page."""

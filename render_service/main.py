@@ -1,0 +1,176 @@
+"""The render-service application: ``create_app(settings)`` builds the FastAPI app.
+
+Run it with ``skyloc serve`` (uvicorn) or ``uvicorn --factory render_service.main:app_from_env``.
+Errors are JSON ``{"detail": reason, "code": machine_code}``: SkylocError subclasses map to
+422 (invalid input, CRS, nodata, unreadable DEM, corrupt file), 404 (unknown job), 500 otherwise.
+"""
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from board.errors import (DemReadError, FormatError, InvalidInputError, JobNotFoundError, SkylocError)
+from render_service import __version__
+from render_service.api.deps import require_token
+from render_service.api.routes import dems, health, jobs, ui
+from render_service.security import TokenAuth, check_startup, load_token
+from render_service.settings import ServiceSettings
+from render_service.store import JobStore
+
+log = logging.getLogger(__name__)
+
+#: Largest JSON request body (bytes); DEM uploads are limited by ``settings.max_upload_bytes``.
+MAX_JSON_BYTES = 1 << 20
+_HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed",
+               409: "conflict", 410: "gone", 413: "too_large", 415: "unsupported_media_type",
+               416: "range_not_satisfiable", 422: "invalid_input", 501: "not_available"}
+
+
+def status_for(exc: SkylocError) -> int:
+    """HTTP status of a SkylocError: what the client must fix is 4xx, the rest 500."""
+    if isinstance(exc, JobNotFoundError):
+        return 404
+    if isinstance(exc, (InvalidInputError, DemReadError, FormatError)):
+        return 422
+    return 500
+
+
+class BodyLimitMiddleware:
+    """Pure ASGI middleware: 413 when a request body exceeds its limit (declared or streamed)."""
+
+    def __init__(self, app, *, upload_limit: int, json_limit: int = MAX_JSON_BYTES) -> None:
+        self.app = app
+        self.upload_limit = upload_limit
+        self.json_limit = json_limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        limit = self.upload_limit + 64 * 1024 if scope["path"].rstrip("/") == "/v1/dems" else self.json_limit
+        declared = dict(scope.get("headers") or []).get(b"content-length")
+        if declared is not None and declared.isdigit() and int(declared) > limit:
+            return await _too_large(send, limit)
+        seen = 0
+        exceeded = False
+        replaced = False
+
+        async def limited_receive():
+            nonlocal seen, exceeded
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > limit:
+                    exceeded = True
+                    raise _BodyTooLarge
+            return message
+
+        async def guarded_send(message):
+            nonlocal replaced
+            if exceeded:  # whatever the app answers after the overflow, the client gets 413
+                if not replaced:
+                    replaced = True
+                    await _too_large(send, limit)
+                return
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, guarded_send)
+        except _BodyTooLarge:
+            if not replaced:
+                await _too_large(send, limit)
+
+
+class _BodyTooLarge(Exception):
+    """Raised inside receive() when a streamed body exceeds the limit."""
+
+
+async def _too_large(send, limit: int) -> None:
+    body = JSONResponse({"detail": f"request body larger than {limit} bytes: upload a smaller file "
+                                   "(see the server's max_upload_bytes)", "code": "too_large"}, status_code=413)
+    await send({"type": "http.response.start", "status": 413, "headers": body.raw_headers})
+    await send({"type": "http.response.body", "body": body.body})
+
+
+def _install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(SkylocError)
+    async def skyloc_error(request: Request, exc: SkylocError) -> JSONResponse:
+        status = status_for(exc)
+        if status >= 500:
+            log.error("%s %s failed: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": str(exc), "code": exc.code}, status_code=status)
+
+    @app.exception_handler(HTTPException)
+    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail, "code": _HTTP_CODES.get(exc.status_code, f"http_{exc.status_code}")},
+                            status_code=exc.status_code, headers=exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{k: v for k, v in e.items() if k in ("loc", "msg", "type")} for e in exc.errors()]
+        return JSONResponse({"detail": jsonable_encoder(errors), "code": "validation_error"}, status_code=422)
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("%s %s failed", request.method, request.url.path)
+        return JSONResponse({"detail": "internal error: see the server log", "code": "internal_error"},
+                            status_code=500)
+
+
+def create_app(settings: ServiceSettings | None = None) -> FastAPI:
+    """Build the app for ``settings``: checks the token rule, opens the store, starts Dask on startup.
+
+    Raises InvalidInputError when a non-loopback host has no token or the token file is unusable.
+    """
+    settings = settings or ServiceSettings()
+    token = load_token(settings)
+    check_startup(settings, token)
+    for d in (settings.data_dir, settings.dems_dir, settings.jobs_dir):
+        d.mkdir(parents=True, exist_ok=True)
+    store = JobStore(settings.store_path)
+    runner = None
+    if settings.start_cluster:
+        from render_service.tiling import JobRunner  # noqa: PLC0415
+
+        runner = JobRunner(store=store, settings=settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        if runner is not None:
+            runner.start()
+        yield
+        if runner is not None:
+            runner.stop()
+        store.close()
+
+    app = FastAPI(title="skyloc render service", version=__version__, lifespan=lifespan,
+                  description="REST queue for skyline databases and simulator test sets, rendered on Dask. "
+                              "Authenticate with `Authorization: Bearer <token>`.")
+    app.state.settings = settings
+    app.state.store = store
+    app.state.runner = runner
+    app.state.auth = TokenAuth(token)
+    auth = [Depends(require_token)]
+    app.include_router(health.router)
+    app.include_router(dems.router, dependencies=auth)
+    app.include_router(jobs.router, dependencies=auth)
+    app.include_router(ui.router, dependencies=auth)
+    _install_error_handlers(app)
+    if settings.cors_origins:
+        from fastapi.middleware.cors import CORSMiddleware  # noqa: PLC0415
+
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
+                           allow_headers=["Authorization", "Content-Type", "Idempotency-Key"])
+    app.add_middleware(BodyLimitMiddleware, upload_limit=settings.max_upload_bytes)
+    log.info("render service: data in %s, %s", settings.data_dir,
+             "token required" if app.state.auth.enabled else "no token (loopback only)")
+    return app
+
+
+def app_from_env() -> FastAPI:
+    """Factory for ``uvicorn --factory``: settings from the ``SKYLOC_*`` environment."""
+    return create_app(ServiceSettings())

@@ -1,0 +1,105 @@
+"""Bearer-token authentication of the render service.
+
+The token comes from ``SKYLOC_TOKEN`` or a token file; a server listening on a non-loopback
+interface refuses to start without one.  Tokens are compared in constant time and never logged
+(they live in :class:`pydantic.SecretStr` until the comparison).
+"""
+from __future__ import annotations
+
+import base64
+import binascii
+import hmac
+import ipaddress
+import logging
+from pathlib import Path
+
+from fastapi import HTTPException, Request
+
+from board.errors import InvalidInputError
+from render_service.settings import ServiceSettings
+
+log = logging.getLogger(__name__)
+
+#: Challenge sent with 401: Bearer for API clients, Basic (any user name, token as password) for browsers.
+CHALLENGE = 'Bearer realm="skyloc", Basic realm="skyloc"'
+
+
+def is_loopback(host: str) -> bool:
+    """True when ``host`` (name or address) only accepts connections from this machine."""
+    if host.strip().lower() in ("localhost", "localhost.localdomain"):
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def load_token(settings: ServiceSettings) -> str | None:
+    """The configured token: ``SKYLOC_TOKEN`` / ``settings.token`` first, else the token file's first line.
+
+    Raises InvalidInputError when the token file is unreadable or empty.
+    """
+    if settings.token is not None and settings.token.get_secret_value().strip():
+        return settings.token.get_secret_value().strip()
+    if settings.token_file is not None:
+        path = Path(settings.token_file)
+        try:
+            lines = path.read_text().splitlines()
+        except OSError as exc:
+            raise InvalidInputError(f"cannot read the token file {path} ({exc.strerror}); "
+                                    "give a readable file whose first line is the token") from None
+        token = lines[0].strip() if lines else ""
+        if not token:
+            raise InvalidInputError(f"the token file {path} is empty: write the token on its first line")
+        return token
+    return None
+
+
+def check_startup(settings: ServiceSettings, token: str | None) -> None:
+    """Refuse to serve a non-loopback interface without a token (InvalidInputError)."""
+    if token is None and not is_loopback(settings.host):
+        raise InvalidInputError(
+            f"refusing to listen on {settings.host} without authentication: set SKYLOC_TOKEN or pass "
+            "--token-file FILE, or listen on 127.0.0.1")
+    if token is not None and len(token) < 16:
+        raise InvalidInputError("the token is too short: use at least 16 random characters "
+                                "(e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`)")
+    if token is None:
+        log.warning("no token configured: the API is open to every local user of this machine")
+
+
+def _presented_token(request: Request) -> str | None:
+    header = request.headers.get("authorization", "")
+    scheme, _, value = header.partition(" ")
+    scheme = scheme.lower()
+    if scheme == "bearer":
+        return value.strip()
+    if scheme == "basic":
+        try:
+            decoded = base64.b64decode(value.strip(), validate=True).decode("utf-8")
+        except (binascii.Error, UnicodeDecodeError):
+            return None
+        return decoded.partition(":")[2]
+    return None
+
+
+class TokenAuth:
+    """FastAPI dependency: 401 unless the request carries the token (Bearer, or Basic password)."""
+
+    def __init__(self, token: str | None) -> None:
+        self._token = token.encode("utf-8") if token is not None else None
+
+    @property
+    def enabled(self) -> bool:
+        return self._token is not None
+
+    def __call__(self, request: Request) -> None:
+        if self._token is None:
+            return
+        given = _presented_token(request)
+        if given is None:
+            raise HTTPException(401, "missing credentials: send 'Authorization: Bearer <token>'",
+                                headers={"WWW-Authenticate": CHALLENGE})
+        if not hmac.compare_digest(given.encode("utf-8"), self._token):
+            raise HTTPException(401, "invalid token: send the token the server was started with",
+                                headers={"WWW-Authenticate": CHALLENGE})
