@@ -31,6 +31,9 @@ from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
 
+#: Renders are made this many stops darker than full well so highlights up to 2**EV survive.
+RENDER_HEADROOM_EV: int = 2
+
 
 # --------------------------------------------------------------------------------------------
 # parameters
@@ -441,6 +444,11 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
 
 
+def decode_render(image: np.ndarray) -> np.ndarray:
+    """Linear full-well units from a render read in [0, 1] (sRGB-encoded, ``-RENDER_HEADROOM_EV`` exposure)."""
+    return (srgb_decode(image) * (2.0 ** RENDER_HEADROOM_EV)).astype(np.float32)
+
+
 def quantise(encoded: np.ndarray, bit_depth: int = 8) -> np.ndarray:
     """Round [0, 1] values to uint8 or uint16."""
     top = (1 << bit_depth) - 1
@@ -467,6 +475,19 @@ def degrade_frame(render_linear: np.ndarray, pinhole: CameraModel, camera: Camer
     if sun_dir_cam is not None:
         img = add_glare(img, camera, sun_dir_cam, s.glare)
     img = apply_vignetting(img, camera, deg.lens.vignetting)
+    img = gaussian_blur(img, deg.lens.blur_px)
+    img = add_sensor_noise(img, rng, full_well_e=s.full_well_e, read_noise_e=s.read_noise_e)
+    return quantise(srgb_encode(img), s.bit_depth)
+
+
+def degrade_panorama(render_linear: np.ndarray, deg: Degradation, rng: np.random.Generator) -> np.ndarray:
+    """An equirectangular render with exposure error, blur and sensor noise (no lens: a panorama
+    has no single lens).  Returns uint8/uint16 sRGB-encoded; binary looks stay 0 / max."""
+    s = deg.sensor
+    img = render_linear.astype(np.float32)
+    if deg.binary:
+        return quantise((img > 0.5).astype(np.float32), s.bit_depth)
+    img = apply_exposure(img, s.exposure_ev)
     img = gaussian_blur(img, deg.lens.blur_px)
     img = add_sensor_noise(img, rng, full_well_e=s.full_well_e, read_noise_e=s.read_noise_e)
     return quantise(srgb_encode(img), s.bit_depth)

@@ -1,0 +1,118 @@
+"""`skyloc sim acquire` (one NavCam acquisition) and `skyloc sim dataset` (test sets from a scene file).
+
+Both are added to the ``sim`` group that :mod:`blender_addon.cli_sim` creates (or created here
+when that module is absent).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from board.errors import InvalidInputError
+
+log = logging.getLogger(__name__)
+
+
+def _parse_xy(value: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise InvalidInputError(f"--at must be X,Y (two numbers separated by a comma), got {value!r}") from None
+    return x, y
+
+
+@click.command("acquire")
+@click.option("--dem", required=True, help="DEM file, or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
+@click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
+@click.option("--crs", default=None, help="CRS of --at when it is not the DEM's (e.g. EPSG:4326).")
+@click.option("--heading", "heading_deg", type=float, required=True, help="Heading, degrees clockwise from grid north.")
+@click.option("--pitch", "pitch_deg", type=float, default=0.0, show_default=True, help="Pitch, degrees (nose up +).")
+@click.option("--roll", "roll_deg", type=float, default=0.0, show_default=True,
+              help="Roll, degrees (right side down +).")
+@click.option("--camera", type=click.Choice(["exomars", "mars2020", "magellium"]), default="exomars",
+              show_default=True, help="NavCam preset (report annex).")
+@click.option("--width", type=int, default=None, help="Render the preset at this width (same field of view).")
+@click.option("--frames", type=int, default=13, show_default=True, help="Number of frames of the pan-tilt plan.")
+@click.option("--arc", "arc_deg", type=float, default=360.0, show_default=True,
+              help="Azimuth arc covered, degrees (360 = full panorama, else centred on the heading).")
+@click.option("--tilt", "tilt_deg", type=float, default=0.0, show_default=True, help="Tilt of every frame, degrees.")
+@click.option("--preset", type=click.Choice(["binary", "clean", "realistic", "distorted"]), default="realistic",
+              show_default=True, help="Look and degradations (the report's noise levels: binary, realistic, distorted).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures, render and noise.")
+@click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples per pixel.")
+@click.option("--radius", "radius_m", type=float, default=None,
+              help="Keep terrain up to this distance (m) beyond the site (default: the whole DEM).")
+@click.option("--body", default=None, help="Body (earth, mars, moon, europa) or radius in metres, if the DEM lacks it.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output acquisition folder.")
+def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_deg: float, roll_deg: float,
+                camera: str, width: int | None, frames: int, arc_deg: float, tilt_deg: float, preset: str,
+                seed: int, samples: int, radius_m: float | None, body: str | None, out_dir: str) -> None:
+    """Render a simulated NavCam acquisition (frames + acquisition.json with ground truth)."""
+    from tqdm import tqdm
+
+    from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator, heading_ok
+    from blender_addon.core.cameras import get_preset
+    from blender_addon.core.degrade import get_degradation
+    from blender_addon.core.plans import plan_frames
+    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
+
+    if samples < 1:
+        raise InvalidInputError(f"--samples must be >= 1, got {samples}")
+    cam = get_preset(camera, width=width)
+    plan = plan_frames(frames, arc_deg, cam.hfov_deg, tilt_deg=tilt_deg)
+    deg = get_degradation(preset)
+    path = resolve_dem(dem)
+    x, y = to_metric_xy(*_parse_xy(at), dem_path=path, crs=crs, body=body)
+    rock_r = deg.rocks.radius_m if deg.rocks.density_per_m2 > 0 else 0.0
+    sim = Simulator(path, (x, y), grid_half_m=max(50.0, rock_r + 20.0), max_radius_m=radius_m, body=body)
+    sim.dem_spec = str(dem)
+    job = AcquisitionJob(Pose(x, y, heading_ok(heading_deg), pitch_deg, roll_deg), cam, plan, deg, seed=seed,
+                         samples=samples)
+    with tqdm(total=plan.n_frames, desc="sim acquire", unit="frame", disable=None) as bar:
+        out = sim.acquire(job, out_dir, progress=lambda done, total, msg: bar.update(done - bar.n))
+    click.echo(f"wrote {Path(out)}: {plan.n_frames} {cam.width}x{cam.height} {preset} frames ({cam.name}) at "
+               f"({x:.2f}, {y:.2f}) m, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
+
+
+@click.command("dataset")
+@click.argument("scene_toml", type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output dataset folder.")
+@click.option("--set", "sets", multiple=True, help="Only this set (repeatable), e.g. --set REF --set CLUT.")
+@click.option("--no-resume", is_flag=True, help="Re-render acquisitions that are already there.")
+@click.option("--check", is_flag=True, help="Only validate the scene file and list the sets.")
+def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume: bool, check: bool) -> None:
+    """Render the test sets of a scene file (e.g. scenes/robustness.toml) with their manifests."""
+    from tqdm import tqdm
+
+    from blender_addon.core.scene_spec import load_scene
+
+    scene = load_scene(scene_toml)
+    if check:
+        for s in scene.sets:
+            click.echo(f"{s.name:6s} {s.count:4d} x {s.camera}/{s.plan} at {s.site}: {', '.join(s.degradations)}"
+                       f"  {s.description}")
+        return
+    from blender_addon.core.dataset import generate_dataset
+
+    with tqdm(desc="sim dataset", unit="acq", disable=None) as bar:
+        def progress(done: int, total: int, msg: str) -> None:
+            bar.total = total
+            bar.set_postfix_str(msg)
+            bar.update(done - bar.n)
+
+        path = generate_dataset(scene_toml, out_dir, progress=progress, sets=list(sets) or None,
+                                resume=not no_resume)
+    click.echo(f"wrote {path}")
+
+
+def register(group: click.Group) -> None:
+    """Add ``acquire`` and ``dataset`` to the ``sim`` group (created if :mod:`cli_sim` did not)."""
+    sim = group.commands.get("sim")
+    if sim is None:
+        @group.group("sim")
+        def sim() -> None:
+            """Simulator (Blender, headless): panoramas, NavCam acquisitions, test sets."""
+    sim.add_command(acquire_cmd)
+    sim.add_command(dataset_cmd)
