@@ -1,0 +1,171 @@
+"""Extraction end to end: acquisitions and panoramas of known skylines -> Skyline samples; failures
+reported with a reason, never a made-up skyline; the `skyloc extract` CLI."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from board.acquisition import GroundTruth, Panorama, PanoramaGeometry, write_panorama
+from board.camera import CameraModel
+from board.extraction import (STATUS_FAILED, STATUS_OK, extract_from_acquisition, extract_from_panorama,
+                              panorama_line_to_skyline)
+from board.skyline import Skyline
+from board.synthetic import SkylineFunction, frame_plan, synth_acquisition, synth_panorama
+
+GEOM = PanoramaGeometry.full_circle(1200, 300, elevation_top_deg=30.0, elevation_bottom_deg=-15.0)
+
+
+def _u8(img):
+    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def acquisition(tmp_path_factory):
+    f = SkylineFunction.random(17)
+    d = tmp_path_factory.mktemp("acq")
+    cam = CameraModel.from_fov(320, 240, 60.0, k1=-0.2, k2=0.05, p1=0.001)
+    synth_acquisition(d, cam, frame_plan(8, (5.0,)), f, pitch_deg=-3.0, roll_deg=5.0, noise_sigma=0.01, seed=3)
+    return d, f
+
+
+def test_acquisition_to_skyline_point_samples(acquisition):
+    d, f = acquisition
+    res = extract_from_acquisition(d)
+    assert res.status == STATUS_OK and res.skyline is not None
+    sk = res.skyline
+    assert sk.n == 360 and sk.azimuth_start_deg == 0.0 and sk.azimuth_step_deg == 1.0
+    step = res.panorama.geometry.elevation_step_deg
+    err_px = (sk.elevation_deg - f(sk.azimuths_deg())) / step
+    assert sk.seen.mean() >= 0.97
+    assert np.nanmean(np.abs(err_px)) <= 1.0           # REF requirement: <= 1 px
+    assert sk.meta["azimuth_reference"] == "heading"
+    json.dumps(res.to_json_dict())
+
+
+def test_other_azimuth_grids(acquisition):
+    from board.extraction import ExtractionOptions
+
+    d, f = acquisition
+    res = extract_from_acquisition(d, options=ExtractionOptions(n_azimuth=720, azimuth_start_deg=0.25))
+    sk = res.skyline
+    assert sk.n == 720 and sk.azimuths_deg()[1] == pytest.approx(0.75)
+    err = sk.elevation_deg - f(sk.azimuths_deg())
+    assert np.nanmean(np.abs(err)) <= res.panorama.geometry.elevation_step_deg
+
+
+def test_point_sampling_is_exact_for_a_linear_line():
+    g = PanoramaGeometry.full_circle(720, 100, elevation_top_deg=10, elevation_bottom_deg=-10)
+    # line whose elevation is linear in azimuth between column centres: el = 0.01 * az (mod the seam)
+    az = g.azimuths_deg()
+    rows = g.row_of_el(0.01 * az)
+    sk = panorama_line_to_skyline(rows, g, n_azimuth=36, azimuth_start_deg=5.0)
+    np.testing.assert_allclose(sk.elevation_deg, 0.01 * sk.azimuths_deg(), atol=1e-9)
+    # a masked column poisons only the samples that need it
+    rows2 = rows.copy()
+    k = int(np.argmin(np.abs(az - 95.0)))       # column centred at 95.25 deg: neighbours 94.75/95.25
+    rows2[k] = np.nan
+    sk2 = panorama_line_to_skyline(rows2, g, n_azimuth=36, azimuth_start_deg=5.0)
+    assert np.isnan(sk2.elevation_deg[9]) and np.isfinite(sk2.elevation_deg).sum() == 35
+
+
+def test_partial_panorama_nan_outside():
+    f = SkylineFunction.random(23)
+    img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01))
+    seen = np.zeros(img.shape, bool)
+    az = GEOM.azimuths_deg()
+    seen[:, (az > 100) & (az < 220)] = True
+    img[~seen] = 0
+    res = extract_from_panorama(Panorama(img, GEOM, seen))
+    assert res.status == STATUS_OK
+    sk = res.skyline
+    saz = sk.azimuths_deg()
+    assert np.all(np.isnan(sk.elevation_deg[(saz < 99) | (saz > 221)]))
+    assert np.isfinite(sk.elevation_deg[(saz > 103) & (saz < 217)]).all()
+
+
+@pytest.mark.parametrize("case,reason", [
+    ("black", "black picture"),
+    ("overexposed", "over-exposed"),
+    ("all_sky", "all sky"),
+    ("all_ground", "all ground"),
+    ("flat_grey", "all sky"),
+])
+def test_failures_have_a_reason_and_no_skyline(case, reason):
+    f = SkylineFunction.random(29)
+    rng = np.random.default_rng(1)
+    if case == "black":
+        img = synth_panorama(GEOM, f, noise_sigma=0.003) * 0.02
+    elif case == "overexposed":
+        img = synth_panorama(GEOM, f, noise_sigma=0.003) * 6.0
+    elif case == "all_sky":
+        img = synth_panorama(GEOM, lambda a: np.full(np.shape(a), -40.0), noise_sigma=0.01)
+    elif case == "all_ground":
+        img = synth_panorama(GEOM, lambda a: np.full(np.shape(a), 50.0), noise_sigma=0.01)
+    else:
+        img = 0.5 + rng.normal(0, 0.01, (GEOM.height, GEOM.width))
+    res = extract_from_panorama(Panorama(_u8(img), GEOM))
+    assert res.status == STATUS_FAILED and res.skyline is None
+    assert reason in res.reason
+
+
+def test_camera_tilted_into_the_ground(tmp_path):
+    # frames looking 35 deg down at terrain with a skyline near 0 deg: the top of the view is below the line
+    f = SkylineFunction(8.0, ((3, 1.0, 0.0),))
+    cam = CameraModel.from_fov(160, 120, 50.0)
+    synth_acquisition(tmp_path, cam, frame_plan(8, (-35.0,)), f, noise_sigma=0.01)
+    res = extract_from_acquisition(tmp_path)
+    assert res.status == STATUS_FAILED and "ground" in res.reason
+
+
+def test_north_referenced_panorama(tmp_path):
+    f = SkylineFunction.random(31)
+    g = PanoramaGeometry.full_circle(1200, 300, elevation_top_deg=30.0, elevation_bottom_deg=-15.0,
+                                     azimuth_reference="north", kind="intensity")
+    write_panorama(tmp_path, _u8(synth_panorama(g, f, noise_sigma=0.01)), g, truth=GroundTruth(0, 0, 40.0))
+    res = extract_from_panorama(tmp_path)
+    assert res.skyline.meta["azimuth_reference"] == "north"
+    err = res.skyline.elevation_deg - f(res.skyline.azimuths_deg())
+    assert np.nanmean(np.abs(err)) <= g.elevation_step_deg
+
+
+# -- CLI --------------------------------------------------------------------------------------
+def _cli():
+    from skyloc.cli import main
+
+    return main
+
+
+def test_cli_extract_panorama_with_debug_picture(tmp_path):
+    f = SkylineFunction.random(37)
+    pano_dir = tmp_path / "pano"
+    write_panorama(pano_dir, _u8(synth_panorama(GEOM, f, noise_sigma=0.01)), GEOM)
+    out, dbg, rep = tmp_path / "sky.json", tmp_path / "dbg.png", tmp_path / "rep.json"
+    r = CliRunner().invoke(_cli(), ["extract", "--panorama", str(pano_dir), "--out", str(out), "--debug", str(dbg),
+                                    "--report", str(rep)])
+    assert r.exit_code == 0, r.output
+    sk = Skyline.load(out)
+    assert np.nanmean(np.abs(sk.elevation_deg - f(sk.azimuths_deg()))) <= GEOM.elevation_step_deg
+    assert dbg.stat().st_size > 10_000 and dbg.read_bytes()[:4] == b"\x89PNG"
+    assert json.loads(rep.read_text())["status"] == "ok"
+
+
+def test_cli_extract_acquisition(acquisition, tmp_path):
+    d, _ = acquisition
+    out = tmp_path / "sky.json"
+    r = CliRunner().invoke(_cli(), ["extract", "--acquisition", str(d), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert Skyline.load(out).coverage_deg >= 350
+
+
+def test_cli_failure_writes_nothing(tmp_path):
+    pano_dir = tmp_path / "pano"
+    write_panorama(pano_dir, np.zeros((GEOM.height, GEOM.width), np.uint8), GEOM)
+    out = tmp_path / "sky.json"
+    r = CliRunner().invoke(_cli(), ["extract", "--panorama", str(pano_dir), "--out", str(out)])
+    assert r.exit_code == 1 and "black picture" in r.output
+    assert not out.exists()
+    r = CliRunner().invoke(_cli(), ["extract", "--out", str(out)])
+    assert r.exit_code == 2 and "exactly one" in r.output
