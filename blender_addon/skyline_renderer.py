@@ -30,6 +30,7 @@ import logging
 import math
 import tempfile
 import threading
+import uuid
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
@@ -138,19 +139,24 @@ class _Session:
         self.lock = threading.Lock()
         self.terrain_ref: weakref.ref | None = None
         self.key: tuple | None = None
+        self.token = uuid.uuid4().hex
         self.tmpdir = Path(tempfile.mkdtemp(prefix="skyloc-blender-"))
 
 
 _SESSION = _Session()
 
 
-def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float, max_distance_m: float | None,
+def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float,
                   refine_half_m: float | None, options: BlenderSkylineOptions) -> None:
     from blender_addon import scene as S
 
+    import bpy  # noqa: TID251
+
     key = (id(terrain), float(radius_m), float(refraction_k), refine_half_m, options)
-    current = _SESSION.terrain_ref is not None and _SESSION.terrain_ref() is terrain
-    if not (current and _SESSION.key == key):
+    scene = bpy.context.scene
+    current = (_SESSION.terrain_ref is not None and _SESSION.terrain_ref() is terrain and _SESSION.key == key
+               and scene.get("skyloc_renderer_token") == _SESSION.token)
+    if not current:
         S.reset_scene()
         S.build_terrain(terrain, curvature=True, radius_m=radius_m, refraction_k=refraction_k,
                         refine_factor=options.refine_factor, refine_half_m=refine_half_m,
@@ -158,11 +164,7 @@ def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float
         S.configure_binary(samples=options.samples)
         _SESSION.terrain_ref = weakref.ref(terrain)
         _SESSION.key = key
-    import bpy  # noqa: TID251
-
-    cam = bpy.data.objects.get("SkylocCamera")
-    if cam is not None:
-        cam.data.clip_end = float(max_distance_m) if max_distance_m else 1.0e8
+        bpy.context.scene["skyloc_renderer_token"] = _SESSION.token
 
 
 def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: np.ndarray, *,
@@ -185,12 +187,15 @@ def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: 
     except NoDataError as exc:
         raise InvalidInputError(f"position ({x:.1f}, {y:.1f}) m has no ground height: {exc}") from None
     with _SESSION.lock:
-        _ensure_scene(terrain, radius_m, refraction_k, max_distance_m, refine_half_m, options)
+        _ensure_scene(terrain, radius_m, refraction_k, refine_half_m, options)
         w = n_az * options.columns_per_sample
         col_step = 360.0 / w
         # column c is centred on az[0] + c * col_step: heading in the image centre
         heading = float(az[0]) + 180.0 - 0.5 * col_step
-        S.place_camera(x, y, z, heading, 0.0, 0.0)
+        cam = S.place_camera(x, y, z, heading, 0.0, 0.0)
+        clip = float(max_distance_m) if max_distance_m else 1.0e8     # ray length ~ horizontal distance
+        if cam.data.clip_end != clip:
+            cam.data.clip_end = clip
         cdp = options.coarse_deg_per_px
         hc = int(round(180.0 / cdp))
         coarse_path = S.render_equirect(_SESSION.tmpdir / "coarse.png", width=w, height=hc,
