@@ -29,6 +29,7 @@ from board.conventions import BODIES
 from board.errors import InvalidInputError
 
 from ..crs import body_equirectangular_srs
+from ..dem import available_memory_bytes as _available_memory_bytes
 from . import craters as _craters
 from . import features as _features
 from .fields import ridged, smooth_mask, spectral_field
@@ -40,6 +41,8 @@ gdal.UseExceptions()
 GENERATOR_VERSION = 1
 #: Largest raster synthesised (cells per side): 20000^2 float32 is 1.6 GB.
 MAX_CELLS_PER_SIDE = 20000
+#: Measured peak memory of :func:`generate` per cell (about 700 MB for 4000^2), with a margin.
+_PEAK_BYTES_PER_CELL = 56
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,13 @@ def generate(preset: str, *, size_m: float, res_m: float, seed: int) -> np.ndarr
         raise InvalidInputError(
             f"{size_m:g} m at {res_m:g} m is {n} cells per side: use between 16 and {MAX_CELLS_PER_SIDE} "
             "(change --size or --res)"
+        )
+    need = _PEAK_BYTES_PER_CELL * n * n
+    avail = _available_memory_bytes()
+    if avail is not None and need > 0.7 * avail:
+        raise InvalidInputError(
+            f"{n} x {n} cells needs about {need / 1e9:.1f} GB of memory to synthesise, more than 70% of the "
+            f"{avail / 1e9:.1f} GB available: use a smaller --size or a coarser --res"
         )
     p = PRESETS[key]
     rng = np.random.Generator(np.random.PCG64(seed))
