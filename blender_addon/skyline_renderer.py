@@ -170,8 +170,11 @@ def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float
 def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: np.ndarray, *,
                     camera_height_m: float, radius_m: float, refraction_k: float = 0.0,
                     max_distance_m: float | None = None, refine_half_m: float | None = None,
-                    options: BlenderSkylineOptions = DEFAULT_OPTIONS) -> np.ndarray:
-    """Skyline (degrees, one per azimuth of the regular grid ``azimuths_deg``) at world (x, y) metres.
+                    options: BlenderSkylineOptions = DEFAULT_OPTIONS) -> tuple[np.ndarray, np.ndarray]:
+    """Skyline at world (x, y) metres: (elevation_deg, distance_m), one per azimuth of ``azimuths_deg``.
+
+    Elevations are degrees above the local horizontal; distances are the horizontal distance (m) to
+    the terrain just below the boundary (NaN when the column has no terrain).
 
     The eye is ``camera_height_m`` above the ground (bilinear on the finest level).
     refine_half_m : half-side (metres) of the square around the site whose cells are refined to
@@ -210,18 +213,47 @@ def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: 
         fine_path = S.render_equirect(_SESSION.tmpdir / "fine.png", width=w, height=hf, el_range_deg=(lo, hi),
                                       color_depth=depth)
         fine = S.read_image(fine_path)
-    el_cols, _, _ = column_boundaries(fine, hi, (hi - lo) / hf)
+        el_cols, _, empty = column_boundaries(fine, hi, (hi - lo) / hf)
+        az_cols = float(az[0]) + np.arange(w) * col_step
+        dist_cols = _horizon_distances(cam, az_cols - heading, el_cols - 0.5 * dpp, empty, clip)
     if options.columns_per_sample == 1:
-        return el_cols.astype(np.float32)
-    az_cols = float(az[0]) + np.arange(w) * col_step
-    return sample_columns(az_cols, el_cols, az).astype(np.float32)
+        return el_cols.astype(np.float32), dist_cols.astype(np.float32)
+    return (sample_columns(az_cols, el_cols, az).astype(np.float32),
+            sample_columns(az_cols, dist_cols, az).astype(np.float32))
+
+
+def _horizon_distances(cam, az_rel_deg: np.ndarray, el_deg: np.ndarray, empty: np.ndarray,
+                       max_dist: float) -> np.ndarray:
+    """Horizontal distance (m) to the terrain hit just below each column's boundary (NaN: none).
+
+    One ``scene.ray_cast`` per column along the camera-frame direction (azimuth from the heading,
+    clockwise; elevation above the camera's horizontal), from the camera.
+    """
+    import bpy  # noqa: TID251
+
+    m = np.array(cam.matrix_world)
+    a, e = np.radians(az_rel_deg), np.radians(el_deg)
+    # camera-body frame (x forward, y left, z up) -> Blender camera axes -> scene
+    body = np.stack([np.cos(e) * np.cos(a), -np.cos(e) * np.sin(a), np.sin(e)], axis=1)
+    from blender_addon.scene.camera import BODY_FROM_BLENDER_CAM
+
+    dirs = body @ (m[:3, :3] @ BODY_FROM_BLENDER_CAM.T).T
+    origin = m[:3, 3]
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    scene = bpy.context.scene
+    out = np.full(len(a), np.nan)
+    for j in np.nonzero(~empty)[0]:
+        hit, loc, *_ = scene.ray_cast(depsgraph, origin.tolist(), dirs[j].tolist(), distance=max_dist)
+        if hit:
+            out[j] = float(np.hypot(loc[0] - origin[0], loc[1] - origin[1]))
+    return out
 
 
 def render_tile(terrain: MultiResTerrain, grid, tile, spec, *,
                 options: BlenderSkylineOptions = DEFAULT_OPTIONS):
     """Render every position of ``tile`` (see :mod:`render_service.renderers.base` for the contract).
 
-    Returns TileResult with elevation_deg (nrows, ncols, n_azimuth) float32 and no distances.
+    Returns TileResult with elevation_deg and distance_m, (nrows, ncols, n_azimuth) float32.
     """
     # The contract's result type lives with the service; imported lazily so that blender_addon
     # does not depend on render_service at import time.
@@ -237,10 +269,11 @@ def render_tile(terrain: MultiResTerrain, grid, tile, spec, *,
     sx, sy = terrain.site_xy
     half = float(max(abs(gx0 - sx), abs(gx1 - sx), abs(gy0 - sy), abs(gy1 - sy)))
     out = np.full((tile.nrows, tile.ncols, az.size), np.nan, dtype=np.float32)
+    dist = np.full_like(out, np.nan)
     for r in range(tile.nrows):
         for c in range(tile.ncols):
-            out[r, c] = render_position(terrain, float(xs[r, c]), float(ys[r, c]), az,
+            out[r, c], dist[r, c] = render_position(terrain, float(xs[r, c]), float(ys[r, c]), az,
                                         camera_height_m=spec.camera_height_m, radius_m=spec.body_radius_m,
                                         refraction_k=spec.refraction_k, max_distance_m=spec.max_distance_m,
                                         refine_half_m=half, options=options)
-    return TileResult(elevation_deg=out, distance_m=None)
+    return TileResult(elevation_deg=out, distance_m=dist)

@@ -65,7 +65,7 @@ class SKYLOC_OT_render_database(bpy.types.Operator):
         dem = bridge.dem_path(s)
         store = bridge.out_dir(s) / "skyline_db.zarr"
         store.parent.mkdir(parents=True, exist_ok=True)
-        cmd = [*bridge.skyloc_command(), "db", "render", str(dem), "--center", f"{s.site_x},{s.site_y}",
+        cmd = [*bridge.skyloc_command(), "db", "render", "--dem", str(dem), "--center", f"{s.site_x},{s.site_y}",
                "--size", str(s.db_size_m), "--step", str(s.db_step_m), "--height", str(s.mast_height_m),
                "--renderer", s.renderer, "--out", str(store), "--no-progress"]
         if bridge.body_arg(s):

@@ -93,12 +93,14 @@ def test_curved_plain_horizon_dip_far_from_the_scene_origin():
     terrain = MultiResTerrain([TerrainLevel(np.zeros((n, n), np.float32), -20_000.0, 20_000.0, 200.0)], "",
                               Body("custom", R), (0.0, 0.0))
     az = np.arange(0, 360, 5.0)
-    el = render_position(terrain, 6000.0, -4000.0, az, camera_height_m=h, radius_m=R,
+    el, dist = render_position(terrain, 6000.0, -4000.0, az, camera_height_m=h, radius_m=R,
                          options=BlenderSkylineOptions(deg_per_px=0.02))
     # parabolic drop d^2/2R: the horizon is at atan(sqrt(2h/R)) below the local horizontal
     expect = -math.degrees(math.atan(math.sqrt(2 * h / R)))
     assert expect == pytest.approx(-horizon_dip_deg(h, R), abs=0.01)
     np.testing.assert_allclose(el, expect, atol=0.03)
+    # the ray just below the boundary lands short of the tangent point, sqrt(2 R h) away
+    assert np.all((dist > 0.75 * np.sqrt(2 * R * h)) & (dist <= 1.01 * np.sqrt(2 * R * h)))
 
 
 def test_dem_panorama_matches_the_ray_marcher(real_dem, tmp_path):
