@@ -93,34 +93,23 @@ def plan_db_job(spec: dict, dem: DemRecord, settings: ServiceSettings) -> DbPlan
     return DbPlan(grid, plan_tiles(grid, int(spec["tile_size"])))
 
 
-def renderer_version(name: str) -> str:
-    """Version string a renderer module declares (``__version__``), '0' when it has none."""
-    from render_service.renderers.base import RENDERERS  # noqa: PLC0415
-    import importlib  # noqa: PLC0415
+def prepare_db_job(spec: dict, dem: DemRecord):
+    """The render description of a database job (:func:`render_service.dbrender.prepare_job`).
 
-    mod = importlib.import_module(RENDERERS[name].split(":")[0])
-    return str(getattr(mod, "__version__", "0"))
-
-
-def db_meta(spec: dict, dem: DemRecord, grid: GridSpec) -> SkyDBMeta:
-    """Database metadata of a job (everything but the creation time is a function of the spec and DEM)."""
-    body = dem.info["body"]
-    return SkyDBMeta(
-        grid=grid, camera_height_m=float(spec["camera_height_m"]), n_azimuth=int(spec["azimuths"]),
-        azimuth_start_deg=float(spec["azimuth_start_deg"]), body=body["name"],
-        body_radius_m=float(body["radius_m"]), refraction_k=float(spec["refraction_k"]),
-        renderer=spec["renderer"], renderer_version=renderer_version(spec["renderer"]),
-        dem_sha256=dem.sha256, tile_size=int(spec["tile_size"]), has_distance=False,
-        extra={"job_spec": spec},
-    )
-
-
-def render_spec(spec: dict, dem: DemRecord):
+    The metadata is the CLI's (``skyloc db render``) so both produce the same database; the server
+    path of the DEM is replaced by its id.
+    """
+    from render_service.dbrender import prepare_job  # noqa: PLC0415
     from render_service.renderers.base import RenderSpec  # noqa: PLC0415
 
-    return RenderSpec(camera_height_m=float(spec["camera_height_m"]), n_azimuth=int(spec["azimuths"]),
-                      azimuth_start_deg=float(spec["azimuth_start_deg"]),
-                      body_radius_m=float(dem.info["body"]["radius_m"]), refraction_k=float(spec["refraction_k"]))
+    rspec = RenderSpec(camera_height_m=float(spec["camera_height_m"]), n_azimuth=int(spec["azimuths"]),
+                       azimuth_start_deg=float(spec["azimuth_start_deg"]), refraction_k=float(spec["refraction_k"]))
+    job = prepare_job(dem.path, center_xy=tuple(spec["center"]), size_m=float(spec["size_m"]),
+                      step_m=float(spec["step_m"]), spec=rspec, renderer=spec["renderer"],
+                      tile_size=int(spec["tile_size"]), body=dem.body)
+    job.meta.extra.pop("dem_path", None)
+    job.meta.extra["dem_id"] = dem.id
+    return job
 
 
 # --------------------------------------------------------------------------------------------
@@ -158,28 +147,23 @@ def build_terrain_task(dem_path: str, site_xy: tuple[float, float], grid_half_m:
 
 def render_tile_task(*, job_id: str, store_path: str, db_path: str, terrain_dir: str, tile: Tile, spec,
                      renderer: str) -> dict:
-    """Render one tile and write its Zarr chunk; skip (render nothing) when the tile is already written.
+    """Render one tile and write its Zarr chunk; render nothing when the tile is already written.
 
     Returns {"tile", "rendered", "seconds"}.  The render is logged in the job store only after the
     chunk and its ``tile_done`` flag are on disk.
     """
-    import zarr  # noqa: PLC0415
-
-    from render_service.renderers.base import get_renderer  # noqa: PLC0415
+    from render_service.dbrender import render_and_write_tile  # noqa: PLC0415
 
     store = _store(store_path)
-    db = SkyDB.open(db_path)
-    if db.done_mask()[tile.ti, tile.tj]:
-        store.mark_tile_done(job_id=job_id, tile_key=tile.key, recovered=True)
-        return {"tile": tile.key, "rendered": False, "seconds": 0.0}
     t0 = time.time()
     terrain = worker_terrain(terrain_dir)
-    result = get_renderer(renderer)(terrain, db.grid, tile, spec)
-    writer = SkyDBWriter(Path(db_path), db.meta, zarr.open_group(str(db_path), mode="r+"))
-    writer.write_tile(tile, result.elevation_deg, result.distance_m if db.meta.has_distance else None)
+    rendered = render_and_write_tile(db_path, terrain, tile, spec, renderer)
     t1 = time.time()
-    store.record_render(job_id=job_id, tile_key=tile.key, worker=worker_name(), started=t0, finished=t1)
-    return {"tile": tile.key, "rendered": True, "seconds": t1 - t0}
+    if rendered:
+        store.record_render(job_id=job_id, tile_key=tile.key, worker=worker_name(), started=t0, finished=t1)
+    else:
+        store.mark_tile_done(job_id=job_id, tile_key=tile.key, recovered=True)
+    return {"tile": tile.key, "rendered": rendered, "seconds": t1 - t0}
 
 
 def dataset_task(scene_toml: str, out_dir: str) -> str:
@@ -392,11 +376,13 @@ class JobRunner:
         jdir.mkdir(parents=True, exist_ok=True)
         terrain_dir, db_path = jdir / "terrain", jdir / "db.zarr"
 
+        rjob = prepare_db_job(spec, dem)
         if not (terrain_dir / "terrain.json").is_file():
-            fut = self.client.submit(build_terrain_task, dem.path, tuple(spec["center"]), float(spec["size_m"]) / 2.0,
+            half = max(rjob.grid.nx, rjob.grid.ny) * abs(rjob.grid.geotransform[1]) / 2.0
+            fut = self.client.submit(build_terrain_task, dem.path, tuple(spec["center"]), half,
                                      360.0 / int(spec["azimuths"]), str(terrain_dir), dem.body, pure=False)
             self._wait_one(fut, job.id)
-        self._ensure_store(db_path, db_meta(spec, dem, plan.grid))
+        self._ensure_store(db_path, rjob.meta)
 
         done = SkyDB.open(db_path).done_mask()
         recorded = self.store.done_tiles(job_id=job.id)
@@ -406,7 +392,7 @@ class JobRunner:
         queue = deque(t for t in plan.tiles if not done[t.ti, t.tj])
         log.info("job %s: %d of %d tiles to render", job.id, len(queue), len(plan.tiles))
 
-        rspec = render_spec(spec, dem)
+        rspec = rjob.spec
         limit = max(1, (self.n_workers() or 1) * self.settings.max_in_flight_per_worker)
         in_flight: dict = {}
         try:
@@ -439,7 +425,7 @@ class JobRunner:
             if in_flight:
                 self.client.cancel(list(in_flight))
 
-        writer = SkyDBWriter.create(db_path, db_meta(spec, dem, plan.grid))
+        writer = SkyDBWriter.create(db_path, rjob.meta)
         writer.finalize()
         sha, nbytes = write_result_zip(db_path, jdir / RESULT_NAME, arcroot="db.zarr")
         self.store.set_state(job_id=job.id, state="done", finished=time.time(), result_path=str(jdir / RESULT_NAME),

@@ -1,0 +1,126 @@
+"""Helpers for the render-service tests: a real `skyloc serve` subprocess on 127.0.0.1 and test rasters."""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+TOKEN = "test-token-0123456789abcdef"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """`python -m skyloc.cli serve` on a free loopback port, with a LocalCluster of ``workers`` processes."""
+
+    def __init__(self, data_dir: Path, *, workers: int = 2, token: str | None = TOKEN) -> None:
+        self.data_dir = Path(data_dir)
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        env = dict(os.environ)
+        env.pop("SKYLOC_TOKEN", None)
+        if token is not None:
+            env["SKYLOC_TOKEN"] = token
+        self.log = open(self.data_dir.parent / f"server-{self.port}.log", "wb")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "skyloc.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
+             "--data", str(self.data_dir), "--workers", str(workers), "--log-level", "warning"],
+            cwd=REPO, env=env, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.client = httpx.Client(base_url=self.url, headers=AUTH, timeout=30.0)
+        self.wait_up()
+
+    def wait_up(self, timeout: float = 60.0) -> None:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}: {self.read_log()}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        raise RuntimeError(f"server did not come up: {self.read_log()}")
+
+    def read_log(self) -> str:
+        self.log.flush()
+        return (self.data_dir.parent / f"server-{self.port}.log").read_text(errors="replace")[-4000:]
+
+    def upload(self, path: Path, *, name: str | None = None, body: str | None = None) -> httpx.Response:
+        data = {"body": body} if body else None
+        with open(path, "rb") as fh:
+            return self.client.post("/v1/dems", files={"file": (name or path.name, fh)}, data=data)
+
+    def wait_job(self, job_id: str, *, states=("done", "failed", "cancelled"), timeout: float = 240.0) -> dict:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            j = self.client.get(f"/v1/jobs/{job_id}").json()
+            if j["state"] in states:
+                return j
+            time.sleep(0.2)
+        raise TimeoutError(f"job {job_id} still {j['state']} after {timeout} s; log: {self.read_log()}")
+
+    def kill9(self) -> None:
+        """SIGKILL the server process only (its Dask workers notice their parent died and exit)."""
+        os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(10)
+        self.client.close()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(10)
+        self.client.close()
+        self.log.close()
+
+
+def write_tif(path: Path, array: np.ndarray, *, epsg: int | None = None, wkt: str | None = None,
+              gt=(500000.0, 10.0, 0.0, 4000000.0, 0.0, -10.0), nodata: float | None = None) -> Path:
+    """A single-band float32 GeoTIFF (GDAL) of ``array`` with the given CRS and geotransform."""
+    from osgeo import gdal, osr
+
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), array.shape[1], array.shape[0], 1, gdal.GDT_Float32)
+    ds.SetGeoTransform(gt)
+    if epsg is not None or wkt is not None:
+        srs = osr.SpatialReference()
+        srs.ImportFromEPSG(epsg) if epsg is not None else srs.ImportFromWkt(wkt)
+        ds.SetProjection(srs.ExportToWkt())
+    band = ds.GetRasterBand(1)
+    if nodata is not None:
+        band.SetNoDataValue(nodata)
+    band.WriteArray(array.astype(np.float32))
+    ds = None
+    return path
+
+
+def write_huge_sparse_tif(path: Path, size: int = 40_000) -> Path:
+    """A tiny file declaring a size x size raster (sparse GeoTIFF: no tile is written)."""
+    from osgeo import gdal
+
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), size, size, 1, gdal.GDT_Float32,
+                                              options=["TILED=YES", "BLOCKXSIZE=1024", "BLOCKYSIZE=1024", "SPARSE_OK=TRUE", "BIGTIFF=YES"])
+    ds.SetGeoTransform((500000.0, 1.0, 0.0, 4000000.0, 0.0, -1.0))
+    from osgeo import osr
+
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(32633)
+    ds.SetProjection(srs.ExportToWkt())
+    ds = None
+    return path
