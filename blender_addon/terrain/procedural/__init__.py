@@ -4,7 +4,7 @@
 ``numpy.random.Generator(PCG64(seed))``:
 
 * fractal relief (spectral synthesis) and broad hills,
-* ridges (ridged noise) and valleys (carved along another field's zero lines),
+* ridges (a ridged multifractal) and valleys (smooth troughs along a slow field's zero lines),
 * craters with a power-law size-frequency distribution, rim, ejecta, central peaks for
   large ones, plus one large "landmark" crater,
 * blocks and boulders (ejecta blocks around fresh craters and a scattered population),
@@ -17,7 +17,6 @@ arguments give the same bytes (no timestamps are written).
 from __future__ import annotations
 
 import logging
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
