@@ -153,21 +153,24 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
         site_sets = [s for s in chosen if s.site == site_name]
         all_jobs = [j for s in site_sets for j in jobs_by_set[s.name]]
         dem_spec, dem_path = _site_dem(site, out, cache)
-        sim: Simulator | None = None
+        from blender_addon.terrain.dem import dem_info
+
+        info = dem_info(dem_path, body=site.body)
+        sim: Simulator | None = None   # built only when something must be rendered
         for s in site_sets:
             set_dir = out / s.name
             set_dir.mkdir(exist_ok=True)
             entries = []
             for i, job in enumerate(jobs_by_set[s.name]):
                 folder = set_dir / f"acq_{i:03d}"
-                if sim is None:
-                    sim = Simulator(dem_path, site.center, grid_half_m=_grid_half(scene, site, all_jobs),
-                                    max_radius_m=site.max_radius_m, body=site.body, cache_dir=cache)
-                    sim.dem_spec = dem_spec
-                key = job_key(job, sim.terrain.dem_sha256)
+                key = job_key(job, info.sha256)
                 if resume and _done(folder, key):
                     log.info("%s exists (same job): kept", folder)
                 else:
+                    if sim is None:
+                        sim = Simulator(dem_path, site.center, grid_half_m=_grid_half(scene, site, all_jobs),
+                                        max_radius_m=site.max_radius_m, body=site.body, cache_dir=cache)
+                        sim.dem_spec = dem_spec
                     job = AcquisitionJob(job.pose, job.camera, job.plan, job.degradation, job.seed, job.samples,
                                          job.denoise, job.imu_sigma_deg, {**job.meta, "job_key": key})
                     sim.acquire(job, folder)
@@ -184,11 +187,10 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
             _write_json(set_dir / SET_MANIFEST, doc)
             set_docs.append({k: doc[k] for k in ("name", "description", "site", "camera", "plan", "seed")}
                             | {"dir": s.name, "count": len(entries), "degradations": list(s.degradations)})
-        if sim is not None:
-            site_docs[site.name] = {"dem": dem_spec, "dem_sha256": sim.terrain.dem_sha256,
-                                    "crs_wkt": sim.terrain.crs_wkt, "center": list(site.center),
-                                    "pose_half_m": site.pose_half_m, "z_scale": site.z_scale,
-                                    "body": sim.terrain.body.name, "body_radius_m": sim.terrain.body.radius_m}
+        site_docs[site.name] = {"dem": dem_spec, "dem_sha256": info.sha256, "crs_wkt": info.crs_wkt,
+                                "center": list(site.center), "pose_half_m": site.pose_half_m,
+                                "z_scale": site.z_scale, "body": info.body.name,
+                                "body_radius_m": info.body.radius_m}
     manifest = {"format": DATASET_FORMAT, "version": DATASET_VERSION, "name": scene.name,
                 "description": scene.description, "seed": scene.seed, "samples": scene.samples,
                 "scene_file": "scene.toml", "scene_sha256": hashlib.sha256(scene.text.encode()).hexdigest(),
