@@ -53,7 +53,7 @@ def add_blocks(
                 np.maximum.at(z, (rr, cc), ground_all[sel] + heights[sel])
 
 
-def _line_distance(shape, cell_m, p0, p1, r0, r1, c0, c1):
+def _line_distance(cell_m, p0, p1, r0, r1, c0, c1):
     """Distance (m) from cell centres in the window to the segment p0-p1 (x east, y south, metres)."""
     ys = (np.arange(r0, r1, dtype=np.float32) + 0.5)[:, None] * cell_m
     xs = (np.arange(c0, c1, dtype=np.float32) + 0.5)[None, :] * cell_m
@@ -81,7 +81,7 @@ def _polyline(rng, width_m, height_m, length_m, n_seg, wiggle):
 def _stamp_polyline(z, cell_m, pts, half_width_m, profile):
     """Apply ``profile(distance_m, t)`` -> height delta along a polyline, windowed per segment (max-combined)."""
     rows, cols = z.shape
-    delta = {}
+    pieces = []
     for p0, p1 in zip(pts[:-1], pts[1:]):
         c0 = max(int((min(p0[0], p1[0]) - half_width_m) / cell_m), 0)
         c1 = min(int((max(p0[0], p1[0]) + half_width_m) / cell_m) + 2, cols)
@@ -89,13 +89,11 @@ def _stamp_polyline(z, cell_m, pts, half_width_m, profile):
         r1 = min(int((max(p0[1], p1[1]) + half_width_m) / cell_m) + 2, rows)
         if c1 <= c0 or r1 <= r0:
             continue
-        d, t = _line_distance(z.shape, cell_m, p0, p1, r0, r1, c0, c1)
-        h = profile(d, t)
-        key = (r0, r1, c0, c1)
-        delta[key] = h
+        d, t = _line_distance(cell_m, p0, p1, r0, r1, c0, c1)
+        pieces.append(((r0, r1, c0, c1), profile(d, t)))
     # combine overlapping segment windows without double counting: keep the largest |delta| per cell
     acc = np.zeros_like(z)
-    for (r0, r1, c0, c1), h in delta.items():
+    for (r0, r1, c0, c1), h in pieces:
         cur = acc[r0:r1, c0:c1]
         np.copyto(cur, h, where=np.abs(h) > np.abs(cur))
     z += acc
