@@ -409,30 +409,34 @@ def dem_info(
 
 
 def to_metric_xy(
-    x: float, y: float, *, dem_path: str | os.PathLike, crs: str | None = None,
+    x, y, *, dem_path: str | os.PathLike, crs: str | None = None,
     body: str | float | Body | None = None, assume_metric: bool = False,
-) -> tuple[float, float]:
-    """Convert a point to the DEM's metric working CRS (metres).
+):
+    """Convert point(s) to the DEM's metric working CRS (metres).
 
     ``(x, y)`` are in ``crs`` (e.g. "EPSG:4326", a WKT or PROJ string; lon, lat order for
     geographic CRSs) or, when ``crs`` is None, in the DEM's own CRS (lon, lat for a DEM in degrees).
+    Scalars give a tuple of floats; arrays give a tuple of float64 arrays of the same shape.
     """
     src = open_metric_source(dem_path, body=body, assume_metric=assume_metric)
     dst = src.working_srs()
-    if crs is None:
-        from_srs = src.source_srs
-    else:
-        from_srs = _crs.srs_from_wkt(crs)
+    from_srs = src.source_srs if crs is None else _crs.srs_from_wkt(crs)
+    scalar = np.ndim(x) == 0 and np.ndim(y) == 0
+    xa, ya = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
     if from_srs.IsSame(dst):
-        return float(x), float(y)
-    try:
-        ct = osr.CoordinateTransformation(from_srs, dst)
-        xm, ym, _ = ct.TransformPoint(float(x), float(y))
-    except RuntimeError as exc:
-        raise CrsError(f"cannot convert ({x}, {y}) from {from_srs.GetName()!r} to the DEM's CRS: {exc}") from None
-    if not (math.isfinite(xm) and math.isfinite(ym)):
+        xm, ym = xa.copy(), ya.copy()
+    else:
+        try:
+            ct = osr.CoordinateTransformation(from_srs, dst)
+            pts = np.asarray(ct.TransformPoints(np.stack([xa.ravel(), ya.ravel()], axis=1).tolist()), dtype=np.float64)
+        except RuntimeError as exc:
+            raise CrsError(f"cannot convert ({x}, {y}) from {from_srs.GetName()!r} to the DEM's CRS: {exc}") from None
+        xm, ym = pts[:, 0].reshape(xa.shape), pts[:, 1].reshape(xa.shape)
+    if not (np.isfinite(xm).all() and np.isfinite(ym).all()):
         raise CrsError(f"({x}, {y}) in {from_srs.GetName()!r} has no position in the DEM's CRS: check the coordinates and --crs")
-    return float(xm), float(ym)
+    if scalar:
+        return float(xm), float(ym)
+    return xm, ym
 
 
 # ---------------------------------------------------------------- DEM specs (files or procedural)
