@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import logging
+from pathlib import Path
 
 import click
 
@@ -39,7 +40,8 @@ def dem_group() -> None:
 @click.option("--res", "res_m", type=float, default=5.0, show_default=True, help="Cell size (m).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same file).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="Output GeoTIFF.")
-def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str) -> None:
+@click.option("--preview", type=click.Path(dir_okay=False), default=None, help="Also write a hillshade PNG here.")
+def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str, preview: str | None) -> None:
     """Synthesise a procedural DEM (GeoTIFF on the body's sphere, centred on 0,0)."""
     from blender_addon.terrain.dem import dem_info
     from blender_addon.terrain.procedural import synthesize
@@ -52,6 +54,10 @@ def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str
         f"x {b[0]:g}..{b[2]:g}, y {b[1]:g}..{b[3]:g} m in CRS {_crs_name(info.crs_wkt)!r} "
         f"(body {info.body.name}, R = {info.body.radius_m:.0f} m)"
     )
+    if preview:
+        from blender_addon.terrain.preview import plot_dem
+
+        click.echo(f"preview: {plot_dem(out, preview)}")
 
 
 @dem_group.command("info")
@@ -104,6 +110,9 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
         path, site, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
         max_radius_m=max_radius, assume_metric=assume_metric, progress=True,
     )
+    from blender_addon.terrain.preview import plot_multires
+
+    png = plot_multires(terrain, Path(out_dir) / "levels.png")
     click.echo(f"terrain for {path} around ({site[0]:.2f}, {site[1]:.2f}) m "
                f"in CRS {_crs_name(terrain.crs_wkt)!r} (body {terrain.body.name}) -> {out_dir}")
     click.echo("| level | cell (m) | cells | x range (m) | y range (m) | used beyond (m) |")
@@ -112,6 +121,7 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
         b = lvl.bounds()
         click.echo(f"| {k} | {lvl.cell_m:g} | {lvl.array.shape[1]} x {lvl.array.shape[0]} | "
                    f"{b[0]:.1f}..{b[2]:.1f} | {b[1]:.1f}..{b[3]:.1f} | {inner:.0f} |")
+    click.echo(f"levels picture: {png}")
 
 
 def register(group: click.Group) -> None:

@@ -18,9 +18,11 @@ def run(*args):
 
 def test_synth_then_prepare(tmp_path):
     tif = tmp_path / "t.tif"
-    r = run("dem", "synth", "--preset", "mars", "--size", 3000, "--res", 10, "--seed", 7, "--out", tif)
+    png = tmp_path / "t.png"
+    r = run("dem", "synth", "--preset", "mars", "--size", 3000, "--res", 10, "--seed", 7, "--out", tif, "--preview", png)
     assert r.exit_code == 0, r.output
     assert "300 x 300" in r.output and "mars" in r.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     r = run("dem", "info", tif, "--json")
     info = json.loads(r.output)
     assert info["body"]["name"] == "mars" and info["bounds"] == [-1500.0, -1500.0, 1500.0, 1500.0]
@@ -31,6 +33,7 @@ def test_synth_then_prepare(tmp_path):
     t = load_multires(out)
     assert t.site_xy == (100.0, -200.0) and t.meta["grid_half_m"] == 200.0 and t.meta["azimuth_step_deg"] == 2.0
     assert f"| {len(t.levels) - 1} |" in r.output  # one table row per level
+    assert (out / "levels.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_prepare_geographic_dem_with_lonlat_center(real_dem, tmp_path):
