@@ -6,6 +6,23 @@ import bpy  # noqa: TID251 (extension layer)
 from .. import bridge
 
 
+def _simulator(Simulator, s):
+    """A Simulator on the terrain already built in this scene.
+
+    Simulator() resets the Blender session (read_factory_settings), which must not happen inside
+    an operator (it frees the operator's own context and crashes Blender); so when the panel has
+    built the terrain, the simulator adopts it instead of building its own.
+    """
+    from blender_addon import scene as bscene
+
+    terrain = bridge.require_terrain()
+    sim = Simulator.__new__(Simulator)
+    sim.dem_spec, sim.dem_path = s.dem.strip(), bridge.SESSION.dem_path
+    sim.site_xy, sim.terrain, sim.grid_half_m = tuple(terrain.site_xy), terrain, float(s.grid_half_m)
+    sim._scene = bscene
+    return sim
+
+
 class SKYLOC_OT_acquire(bpy.types.Operator):
     """Render the pan-tilt frames of the chosen camera at the rover pose into an acquisition folder"""
 
@@ -23,8 +40,7 @@ class SKYLOC_OT_acquire(bpy.types.Operator):
         try:
             with bridge.Progress(context, "acquire") as prog:
                 preset = get_preset(s.camera, width=int(s.frame_width) or None)
-                sim = Simulator(s.dem.strip(), bridge.site_xy(s), grid_half_m=float(s.grid_half_m),
-                                max_radius_m=float(s.max_radius_m) or None, body=bridge.body_arg(s))
+                sim = _simulator(Simulator, s)
                 job = AcquisitionJob(Pose(s.site_x, s.site_y, s.heading_deg, s.pitch_deg, s.roll_deg), preset,
                                      plan_frames(int(s.frames), float(s.arc_deg), preset.hfov_deg),
                                      get_degradation(s.preset), seed=int(s.seed))

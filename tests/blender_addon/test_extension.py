@@ -1,0 +1,125 @@
+"""The Blender extension: installs and enables as an extension through bpy (headless), registers
+and unregisters cleanly, and its operators run end to end on a small GeoTIFF."""
+from __future__ import annotations
+
+import importlib
+import sys
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+pytestmark = pytest.mark.blender
+
+
+def _registered() -> dict[str, bool]:
+    return {
+        "props": hasattr(bpy.types.Scene, "skyloc"),
+        "panel": hasattr(bpy.types, "SKYLOC_PT_terrain"),
+        "operator": hasattr(bpy.types, "SKYLOC_OT_build_terrain"),
+    }
+
+
+def test_importing_the_package_does_not_import_bpy():
+    import subprocess
+
+    code = "import sys, blender_addon, blender_addon.core.terrain_mesh, blender_addon.terrain; print('bpy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_installs_enables_and_disables_as_an_extension(tmp_path):
+    from blender_addon.packaging import build_extension, manifest_id
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    zip_path = build_extension(tmp_path)
+    assert bpy.ops.extensions.package_install_files(filepath=str(zip_path), repo="user_default",
+                                                    enable_on_install=True) == {"FINISHED"}
+    module = f"bl_ext.user_default.{manifest_id()}"
+    try:
+        assert module in {a.module for a in bpy.context.preferences.addons}
+        assert all(_registered().values())
+        assert "Skyloc" in {getattr(bpy.types, n).bl_category for n in dir(bpy.types) if n.startswith("SKYLOC_PT_")}
+    finally:
+        bpy.ops.preferences.addon_disable(module=module)
+    assert not any(_registered().values())
+    repo = next(r for r in bpy.context.preferences.extensions.repos if r.module == "user_default")
+    assert bpy.ops.extensions.package_uninstall(repo_directory=repo.directory, pkg_id=manifest_id()) == {"FINISHED"}
+    assert module not in {a.module for a in bpy.context.preferences.addons}
+
+
+def test_register_unregister_twice():
+    import blender_addon
+
+    for _ in range(2):
+        blender_addon.register()
+        assert all(_registered().values())
+        blender_addon.unregister()
+        assert not any(_registered().values())
+
+
+@pytest.fixture()
+def crater_tif(tmp_path):
+    """A 2 km x 2 km UTM GeoTIFF at 10 m: a bowl with a 60 m rim around (500,000, 4,000,000)."""
+    from osgeo import gdal, osr
+
+    n, cell = 200, 10.0
+    x0, y0 = 499_000.0, 4_001_000.0
+    c = (np.arange(n) + 0.5) * cell - 1000.0
+    X, Y = np.meshgrid(c, -c)
+    z = (60.0 * np.exp(-(((np.hypot(X, Y) - 600.0) / 120.0) ** 2))).astype(np.float32)
+    path = tmp_path / "crater.tif"
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), n, n, 1, gdal.GDT_Float32)
+    ds.SetGeoTransform((x0, cell, 0, y0, 0, -cell))
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(32633)
+    ds.SetProjection(srs.ExportToWkt())
+    ds.GetRasterBand(1).WriteArray(z)
+    ds = None
+    return path
+
+
+def test_operators_run_end_to_end(crater_tif, tmp_path):
+    import blender_addon
+    from board.acquisition import load_acquisition, load_panorama
+    from board.skydb import SkyDB
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_addon.register()
+    try:
+        s = bpy.context.scene.skyloc
+        s.dem = str(crater_tif)
+        s.out_dir = str(tmp_path / "out")
+        assert bpy.ops.skyloc.import_dem() == {"FINISHED"}
+        assert (s.site_x, s.site_y) == pytest.approx((500_000.0, 4_000_000.0))
+        s.grid_half_m = 50.0
+        assert bpy.ops.skyloc.build_terrain() == {"FINISHED"}
+        assert s.progress == pytest.approx(1.0) and "done" in s.status
+        assert len(bpy.data.collections["SkylocTerrain"].objects) > 0
+        s.heading_deg, s.pitch_deg, s.roll_deg = 30.0, 4.0, -2.0
+        assert bpy.ops.skyloc.place_rover() == {"FINISHED"}
+        cam = bpy.context.scene.camera
+        assert cam["skyloc_pose"][3:] == pytest.approx([30.0, 4.0, -2.0])
+        assert bpy.ops.skyloc.camera_preset() == {"FINISHED"}
+        assert (bpy.context.scene.render.resolution_x, s.mast_height_m) == (1024, pytest.approx(2.05))
+        s.pano_width = 128
+        assert bpy.ops.skyloc.render_panorama() == {"FINISHED"}
+        pano = load_panorama(tmp_path / "out" / "panorama")
+        assert pano.geometry.width == 128 and pano.truth.heading_deg == 30.0
+        s.frames, s.arc_deg, s.frame_width, s.preset = 2, 130.0, 48, "binary"
+        assert bpy.ops.skyloc.acquire() == {"FINISHED"}
+        acq = load_acquisition(tmp_path / "out" / "acquisition")
+        assert len(acq.frames) == 2
+        s.db_size_m, s.db_step_m = 20.0, 20.0
+        assert bpy.ops.skyloc.render_database(wait=True) == {"FINISHED"}, s.status
+        db = SkyDB.open(tmp_path / "out" / "skyline_db.zarr")
+        assert db.shape[:2] == (2, 2) and np.isfinite(db.read_all()).all()
+        # a failure is reported to the user (bpy turns an ERROR report into RuntimeError for Python callers)
+        s.dem = str(tmp_path / "missing.tif")
+        with pytest.raises(RuntimeError, match="does not exist"):
+            bpy.ops.skyloc.import_dem()
+        assert "failed" in s.status and not s.busy
+    finally:
+        blender_addon.unregister()
+    importlib.invalidate_caches()
