@@ -20,8 +20,10 @@ from render_service.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
 
-#: Challenge sent with 401: Bearer for API clients, Basic (any user name, token as password) for browsers.
-CHALLENGE = 'Bearer realm="skyloc", Basic realm="skyloc"'
+#: Challenges sent with 401: Bearer for the API, Basic (any user name, the token as password) for the
+#: HTML page so that a browser asks for it (browsers do not parse several challenges in one header).
+API_CHALLENGE = 'Bearer realm="skyloc"'
+PAGE_CHALLENGE = 'Basic realm="skyloc", charset="UTF-8"'
 
 
 def is_loopback(host: str) -> bool:
@@ -97,9 +99,8 @@ class TokenAuth:
         if self._token is None:
             return
         given = _presented_token(request)
+        challenge = {"WWW-Authenticate": PAGE_CHALLENGE if request.url.path == "/" else API_CHALLENGE}
         if given is None:
-            raise HTTPException(401, "missing credentials: send 'Authorization: Bearer <token>'",
-                                headers={"WWW-Authenticate": CHALLENGE})
+            raise HTTPException(401, "missing credentials: send 'Authorization: Bearer <token>'", headers=challenge)
         if not hmac.compare_digest(given.encode("utf-8"), self._token):
-            raise HTTPException(401, "invalid token: send the token the server was started with",
-                                headers={"WWW-Authenticate": CHALLENGE})
+            raise HTTPException(401, "invalid token: send the token the server was started with", headers=challenge)
