@@ -45,19 +45,21 @@ def _bound_tan(a_m: float, d_m: float, c_per_m: float) -> float:
 
 @njit(inline="always", **_NOGIL)
 def _bilinear(heights, off, ncols, u, v):
-    """Bilinear height at fractional (column u, row v); caller guarantees 0 <= u <= cols-1 etc."""
-    c0 = int(u)
+    """Bilinear height at fractional (column u, row v); caller guarantees 0 <= u <= cols-1 etc.
+
+    At the last column/row (u == cols - 1) the weight of the next cell is 0, so reading one cell
+    further is avoided by stepping back one cell instead (same value, no branch on the data).
+    """
+    c0 = min(int(u), ncols - 2)
     r0 = int(v)
     fu = u - c0
     fv = v - r0
-    c1 = c0 + 1 if fu > 0.0 else c0
-    r1 = r0 + 1 if fv > 0.0 else r0
     i00 = off + r0 * ncols + c0
-    i01 = off + r0 * ncols + c1
-    i10 = off + r1 * ncols + c0
-    i11 = off + r1 * ncols + c1
-    top = heights[i00] + fu * (heights[i01] - heights[i00])
-    bot = heights[i10] + fu * (heights[i11] - heights[i10])
+    top = heights[i00] + fu * (heights[i00 + 1] - heights[i00])
+    if fv == 0.0:
+        return top
+    i10 = i00 + ncols
+    bot = heights[i10] + fu * (heights[i10 + 1] - heights[i10])
     return top + fv * (bot - top)
 
 
@@ -79,11 +81,38 @@ def _exit_distance(u, v, du, dv, lo_u, hi_u, lo_v, hi_v):
 @njit(**_NOGIL)
 def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
               blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
-              c_per_m, d_start, min_step, step_per_m, max_dist):
+              c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth):
     """March one ray; return (best tangent, its distance in metres), (-inf, nan) if no sample."""
     nlev = offsets.shape[0]
     best = -np.inf
     best_d = np.nan
+    # Near field: until the step starts growing, samples lie on the fixed lattice k * min_step
+    # (a skip resumes on the lattice), so nearby terrain is sampled at reproducible distances.
+    d_lattice = min_step / step_per_m if step_per_m > 0.0 else np.inf
+    # Seed the best tangent with a sparse geometric pass along the same ray beyond the lattice:
+    # genuine terrain points of the ray, and an early lower bound that lets the block test skip
+    # most terrain that cannot form the horizon, near field included.
+    if seed_growth > 1.0:
+        d = max(d_start, d_lattice)
+        lev = 0
+        while d <= max_dist:
+            x = px + d * sx
+            y = py + d * sy
+            while lev < nlev:
+                inv = 1.0 / cell[lev]
+                u = (x - x0[lev]) * inv - 0.5
+                v = (y0[lev] - y) * inv - 0.5
+                if u >= 0.0 and v >= 0.0 and u <= cols[lev] - 1 and v <= rows[lev] - 1:
+                    break
+                lev += 1
+            if lev >= nlev:
+                break
+            z = _bilinear(heights, offsets[lev], cols[lev], u, v)
+            num = z - z_eye - c_per_m * d * d
+            if num > best * d:
+                best = num / d
+                best_d = d
+            d *= seed_growth
     d = d_start
     lev = 0
     while d <= max_dist:
@@ -115,6 +144,8 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
         if _bound_tan(bm - z_eye, d, c_per_m) <= best:
             t = _exit_distance(u, v, du, dv, bj * b2, (bj + 1) * b2, bi * b2, (bi + 1) * b2)
             d += max(t, 0.0) + _SKIP_PAST * cell[lev]
+            if d < d_lattice:
+                d = math.ceil(d / min_step) * min_step
             continue
         b1 = blk1_size
         bj = ci // b1
@@ -123,18 +154,34 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
         if _bound_tan(bm - z_eye, d, c_per_m) <= best:
             t = _exit_distance(u, v, du, dv, bj * b1, (bj + 1) * b1, bi * b1, (bi + 1) * b1)
             d += max(t, 0.0) + _SKIP_PAST * cell[lev]
+            if d < d_lattice:
+                d = math.ceil(d / min_step) * min_step
             continue
-        z = _bilinear(heights, offsets[lev], cols[lev], u, v)
-        tan = (z - z_eye - c_per_m * d * d) / d
-        if tan > best:
-            best = tan
-            best_d = d
-        step = step_per_m * d
-        if step < min_step:
-            step = min_step
-        if step > cell[lev]:
-            step = cell[lev]
-        d += step
+        # this block may hold the horizon: sample it densely up to its exit (or the level's)
+        t = _exit_distance(u, v, du, dv, bj * b1, (bj + 1) * b1, bi * b1, (bi + 1) * b1)
+        t = min(t, _exit_distance(u, v, du, dv, 0.0, cols[lev] - 1.0, 0.0, rows[lev] - 1.0))
+        d_end = min(d + max(t, 0.0), max_dist)
+        off = offsets[lev]
+        ncol = cols[lev]
+        umax = cols[lev] - 1.0
+        vmax = rows[lev] - 1.0
+        cl = cell[lev]
+        bu = (px - x0[lev]) * inv - 0.5
+        bv = (y0[lev] - py) * inv - 0.5
+        while d <= d_end:
+            uu = min(max(bu + d * du, 0.0), umax)
+            vv = min(max(bv + d * dv, 0.0), vmax)
+            z = _bilinear(heights, off, ncol, uu, vv)
+            num = z - z_eye - c_per_m * d * d
+            if num > best * d:           # tangent num / d beats the best (d > 0): no division
+                best = num / d
+                best_d = d
+            step = step_per_m * d
+            if step < min_step:
+                step = min_step
+            if step > cl:
+                step = cl
+            d += step
     return best, best_d
 
 
@@ -152,7 +199,7 @@ def eye_height(px, py, heights, offsets, rows, cols, x0, y0, cell):
 @njit(parallel=True, **_NOGIL)
 def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
                      blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
-                     c_per_m, d_start, min_step, step_per_m, max_dist):
+                     c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth):
     """Horizon of many positions: (elevation degrees, distance metres), each (n_pos, n_az) float32.
 
     Positions outside level 0 (no ground height) or rays without any sample give NaN.
@@ -170,7 +217,7 @@ def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols
             best, bd = march_ray(px[p], py[p], z_eye, sin_az[a], cos_az[a], heights, offsets, rows, cols,
                                  x0, y0, cell, suffix_max, blk1, blk1_off, blk1_cols, blk1_size,
                                  blk2, blk2_off, blk2_cols, blk2_size, c_per_m, d_start, min_step,
-                                 step_per_m, max_dist)
+                                 step_per_m, max_dist, seed_growth)
             if best > -np.inf:
                 el[p, a] = math.degrees(math.atan(best))
                 dist[p, a] = bd

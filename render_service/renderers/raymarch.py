@@ -39,11 +39,13 @@ class MarchOptions:
     min_step_cells : smallest step (and first sample distance), in level-0 cells
     step_per_m : step growth with distance (metres of step per metre of distance; 0.01 ~ 0.57 deg)
     block_cells : sizes (small, big) of the blocks used for empty-space skipping, in cells
+    seed_growth : ratio of the sparse geometric pre-pass that seeds the best tangent (0: none)
     """
 
     min_step_cells: float = 0.25
     step_per_m: float = 0.01
     block_cells: tuple[int, int] = (8, 64)
+    seed_growth: float = 1.2
 
 
 DEFAULT_OPTIONS = MarchOptions()
@@ -181,7 +183,8 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
     min_step = options.min_step_cells * float(pk.cell[0])
     max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
     return _kernels.render_positions(px, py, float(spec.camera_height_m), sin_az, cos_az, *pk.kernel_args(),
-                                     c_per_m, min_step, min_step, float(options.step_per_m), max_dist)
+                                     c_per_m, min_step, min_step, float(options.step_per_m), max_dist,
+                                     float(options.seed_growth))
 
 
 def check_positions_inside(terrain: MultiResTerrain, x_m, y_m) -> None:
