@@ -131,7 +131,8 @@ def main() -> None:
     ap.add_argument("--dems", default="earth_sthelens_1980_usgs30m.dem,mars_gale_hirise_1m_mmgis_missionDEM.tif")
     args = ap.parse_args()
 
-    lines = [f"Blender core benchmark, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {_load()} (2 shared cores)",
+    when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    lines = [f"Blender core benchmark, {when}, {_load()} (2 shared cores)",
              "", "| binary panoramas (Cycles CPU, 1 sample) | wall time (CPU time: both cores) |", "| --- | --- |"]
     lines += bench_panorama(args.dem, args.width, args.poses)
     lines += ["", f"Skyline databases, {args.grid} x {args.grid} positions, 360 azimuths, 0.1 deg/px "

@@ -105,7 +105,8 @@ class SKYLOC_OT_render_database(bpy.types.Operator):
                 s.busy, s.status = False, f"database failed: {exc}"
                 return None
             s.progress = sc.job_fraction(j)
-            s.status = f"service job {j['id']}: {j.get('state')} ({j.get('tiles_done', 0)}/{j.get('tiles_total', '?')} tiles)"
+            done, total = j.get("tiles_done", 0), j.get("tiles_total", "?")
+            s.status = f"service job {j['id']}: {j.get('state')} ({done}/{total} tiles)"
             if j.get("state") in ("done", "failed", "cancelled"):
                 s.busy = False
                 if j.get("state") != "done":

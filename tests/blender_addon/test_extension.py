@@ -123,3 +123,45 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
     finally:
         blender_addon.unregister()
     importlib.invalidate_caches()
+
+
+@pytest.mark.service
+@pytest.mark.slow
+@pytest.mark.realdem
+def test_render_database_operator_submits_to_the_service(real_dem, tmp_path):
+    """Against a real `skyloc serve` (the render-service tests' helper): upload, submit, poll to done."""
+    import importlib.util
+    from pathlib import Path
+
+    import blender_addon
+
+    helper = Path(__file__).resolve().parents[1] / "render_service" / "_service_helpers.py"
+    if not helper.is_file():
+        pytest.skip("render-service test helpers not present")
+    spec = importlib.util.spec_from_file_location("skyloc_service_test_helpers", helper)
+    H = sys.modules.get(spec.name) or importlib.util.module_from_spec(spec)
+    if spec.name not in sys.modules:
+        sys.modules[spec.name] = H
+        spec.loader.exec_module(H)
+    (tmp_path / "data").mkdir()
+    srv = H.Server(tmp_path / "data", workers=1)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_addon.register()
+    try:
+        s = bpy.context.scene.skyloc
+        s.dem = str(real_dem("mars_gale_hirise_1m_mmgis_missionDEM.tif"))
+        s.site_x, s.site_y = 8142580.0, -276620.0
+        s.db_size_m, s.db_step_m = 10.0, 5.0
+        s.use_service, s.service_url, s.service_token = True, srv.url, H.TOKEN
+        assert bpy.ops.skyloc.render_database(wait=True) == {"FINISHED"}, s.status
+        assert "done (" in s.status and s.progress == pytest.approx(1.0)
+        jobs = srv.client.get("/v1/jobs").json()
+        job = (jobs["jobs"] if isinstance(jobs, dict) else jobs)[0]
+        assert job["state"] == "done" and job["positions_total"] == 9
+        # a wrong token is refused with the service's reason
+        s.service_token = "wrong"
+        with pytest.raises(RuntimeError, match="HTTP 401"):
+            bpy.ops.skyloc.render_database(wait=True)
+    finally:
+        blender_addon.unregister()
+        srv.stop()
