@@ -23,6 +23,7 @@ import os
 import shutil
 import tempfile
 import time
+import uuid
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -123,10 +124,22 @@ class Simulator:
         from blender_addon import scene as bscene
 
         self._scene = bscene
-        bscene.reset_scene()
-        bscene.build_terrain(self.terrain)
+        self._token = uuid.uuid4().hex
+        self._build()
         log.info("simulator: terrain of %s around (%.1f, %.1f) built in %.1f s", self.dem_spec, *self.site_xy,
                  time.perf_counter() - t0)
+
+    def _build(self) -> None:
+        """(Re)build the Blender scene: empty session, terrain meshes, and this simulator's token."""
+        self._scene.reset_scene()
+        self._scene.build_terrain(self.terrain)
+        self._scene.state.get_scene()["skyloc_simulator"] = self._token
+
+    def _ensure_scene(self) -> None:
+        """Rebuild the terrain if another Simulator (or anything else) reset the Blender session since."""
+        if self._scene.state.get_scene().get("skyloc_simulator") != self._token:
+            log.info("simulator: the Blender scene was replaced; rebuilding the terrain")
+            self._build()
 
     def ground_z(self, x: float, y: float) -> float:
         """Ground height (metres) at world (x, y)."""
@@ -151,6 +164,7 @@ class Simulator:
         from blender_addon.scene.pantilt import point_camera
 
         self._check_pose(job.pose)
+        self._ensure_scene()
         deg = job.degradation
         p = job.pose
         cam = job.camera.camera_model(**deg.lens.distortion)
@@ -197,7 +211,7 @@ class Simulator:
         """Render ``job`` into the acquisition folder ``out_dir`` (replaced atomically); returns its path."""
         out = Path(out_dir)
         out.parent.mkdir(parents=True, exist_ok=True)
-        images, meta = self.render_frames(job, progress=progress, work_dir=out.parent)
+        images, meta = self.render_frames(job, progress=progress)
         p = job.pose
         cam = job.camera.camera_model(**job.degradation.lens.distortion)
         frames = [FrameInfo(f"frame_{i:03d}.png", pan, tilt) for i, (pan, tilt) in enumerate(job.plan.frames())]

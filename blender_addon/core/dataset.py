@@ -21,6 +21,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -160,6 +161,8 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
         for s in site_sets:
             set_dir = out / s.name
             set_dir.mkdir(exist_ok=True)
+            for stale in set_dir.glob(".acq_*.partial*"):      # left by an interrupted run
+                shutil.rmtree(stale, ignore_errors=True)
             entries = []
             for i, job in enumerate(jobs_by_set[s.name]):
                 folder = set_dir / f"acq_{i:03d}"

@@ -7,8 +7,8 @@ Call :func:`dress_scene` after :func:`blender_addon.scene.build_terrain`.  It re
   mottling (decimetres) of relative spread ``albedo_variation``, plus bump;
 * scatters rocks and pebbles around the site (:mod:`blender_addon.core.rocks`, one mesh);
 * makes a Mars sky world: butterscotch, brighter at the horizon, with an aureole around the
-  sun whose width and strength grow with the dust optical depth (a clear sky is a plain
-  blue-grey gradient);
+  sun whose width and strength grow with the dust optical depth (a clear sky is a bright
+  blue-white gradient, about twice the sunlit regolith, for a high-contrast reference);
 * fades every surface towards the horizon sky colour with distance, ``exp(-tau d / H)``
   (aerial perspective by dust), in the materials (cheap; no volume rendering);
 * lights the scene with a sun lamp of angular diameter 0.35 deg dimmed by ``exp(-tau m)``
@@ -90,15 +90,17 @@ def sky_radiances(deg: Degradation) -> tuple[np.ndarray, np.ndarray, float]:
     e0 = SUN_IRRADIANCE * deg.sun.strength
     lift = max(math.sin(math.radians(sun_el)) + 0.08, 0.02)
     if deg.sky.clear or deg.sky.dust_tau <= 0:
-        horizon = np.array([0.55, 0.62, 0.75]) * 0.055 * e0 * lift
-        zenith = np.array([0.35, 0.45, 0.65]) * 0.03 * e0 * lift
+        # a bright, dust-free reference sky: about twice the sunlit regolith, bluish white
+        horizon = np.array([0.80, 0.86, 0.95]) * 0.14 * e0 * lift
+        zenith = np.array([0.55, 0.65, 0.85]) * 0.10 * e0 * lift
         return horizon, zenith, 0.5
     tau = deg.sky.dust_tau
     scattered = 1.0 - math.exp(-tau * airmass(sun_el))
-    level = e0 * lift * (0.06 + 0.8 * scattered) / math.pi
-    horizon = np.array([1.0, 0.74, 0.52]) * level * 1.3
+    # horizon about 0.35 of full well at tau 0.6 and 0.5 at tau 3 for a 35 deg sun (red channel)
+    level = e0 * lift * (0.04 + 0.45 * scattered) / math.pi
+    horizon = np.array([1.0, 0.74, 0.52]) * level
     zenith = np.array([0.85, 0.62, 0.45]) * level * (0.55 + 0.35 * (1.0 - math.exp(-tau)))
-    return horizon, zenith, 1.5 + 4.0 * (1.0 - math.exp(-tau))
+    return horizon, zenith, 0.8 + 1.5 * (1.0 - math.exp(-tau))
 
 
 def sun_transmission(deg: Degradation) -> float:
