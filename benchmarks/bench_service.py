@@ -1,0 +1,191 @@
+"""Render-service benchmark: database throughput through the service vs the CLI, and status latency.
+
+Run with ``make bench-service`` (or ``python -m benchmarks.bench_service --help``).  Everything runs on
+this machine and talks only to 127.0.0.1:
+
+1. the CLI, ``skyloc db render`` in a subprocess (one process, numba threads on every core);
+2. the service, ``skyloc serve`` in a subprocess with a LocalCluster of ``--workers`` processes: the same
+   database job submitted over HTTP and polled until done (after a small warm-up job, as a long-running
+   service would be), wall time from POST to done;
+3. status latency: while a larger job renders, ``--rounds`` bursts of ``--concurrency`` simultaneous
+   ``GET /v1/jobs/{id}`` requests; p50 / p99 / max of the response times.
+
+Prints a markdown table.  The machine is shared: figures are noisy, the ratio of the two runs (same
+run, same DEM, same grid) is the meaningful number.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+TOKEN = "bench-token-0123456789abcdef"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_cli(dem: Path, center: tuple[float, float], args, out: Path) -> float:
+    """Wall seconds of `skyloc db render` for the benchmark grid."""
+    cmd = [sys.executable, "-m", "skyloc.cli", "db", "render", "--dem", str(dem), "--center", f"{center[0]},{center[1]}",
+           "--size", str(args.size), "--step", str(args.step), "--azimuths", str(args.azimuths),
+           "--tile", str(args.tile), "--height", "2.0", "--out", str(out), "--no-progress"]
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+class Service:
+    def __init__(self, data: Path, workers: int) -> None:
+        self.port = _free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        env = {**os.environ, "SKYLOC_TOKEN": TOKEN}
+        self.proc = subprocess.Popen([sys.executable, "-m", "skyloc.cli", "serve", "--host", "127.0.0.1",
+                                      "--port", str(self.port), "--data", str(data), "--workers", str(workers),
+                                      "--log-level", "warning"], env=env, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL, start_new_session=True)
+        self.client = httpx.Client(base_url=self.url, headers=AUTH, timeout=60)
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end:
+            try:
+                if self.client.get("/healthz").status_code == 200:
+                    return
+            except httpx.HTTPError:
+                time.sleep(0.2)
+        raise RuntimeError("the service did not start")
+
+    def submit(self, spec: dict) -> str:
+        r = self.client.post("/v1/jobs", json=spec)
+        r.raise_for_status()
+        return r.json()["id"]
+
+    def wait(self, job_id: str, states=("done", "failed")) -> dict:
+        while True:
+            j = self.client.get(f"/v1/jobs/{job_id}").json()
+            if j["state"] in states:
+                return j
+            time.sleep(0.1)
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+
+
+def status_latency(svc: Service, job_id: str, *, concurrency: int, rounds: int) -> tuple[np.ndarray, bool]:
+    lat: list[float] = []
+    for _ in range(rounds):
+        lat += asyncio.run(_burst_path(svc.url, f"/v1/jobs/{job_id}", concurrency))
+    still_running = svc.client.get(f"/v1/jobs/{job_id}").json()["state"] == "running"
+    return np.array(lat), still_running
+
+
+async def _burst_path(base: str, path: str, n: int) -> list[float]:
+    limits = httpx.Limits(max_connections=n, max_keepalive_connections=n)
+    async with httpx.AsyncClient(base_url=base, headers=AUTH, limits=limits, timeout=60) as client:
+        async def one() -> float:
+            t0 = time.perf_counter()
+            r = await client.get(path)
+            r.raise_for_status()
+            return time.perf_counter() - t0
+
+        return list(await asyncio.gather(*[one() for _ in range(n)]))
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--dem", default="procedural:mars:7:6000:5", help="DEM path or procedural:PRESET:SEED:SIZE:RES")
+    p.add_argument("--size", type=float, default=500.0, help="grid side, m")
+    p.add_argument("--step", type=float, default=5.0, help="grid step, m")
+    p.add_argument("--azimuths", type=int, default=360)
+    p.add_argument("--tile", type=int, default=32)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--concurrency", type=int, default=200)
+    p.add_argument("--rounds", type=int, default=5)
+    args = p.parse_args(argv)
+
+    from blender_addon.terrain.dem import dem_info, resolve_dem
+
+    dem = resolve_dem(args.dem)
+    info = dem_info(dem)
+    b = info.bounds
+    center = ((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
+    n = int(round(args.size / args.step)) + 1
+    positions = n * n
+    work = Path(tempfile.mkdtemp(prefix="skyloc-bench-service-"))
+    try:
+        # warm the numba cache once so neither side pays the first compilation, then measure the CLI's
+        # fixed cost (interpreter, imports, DEM checks, terrain build) on a 3 x 3 grid
+        tiny = argparse.Namespace(size=20, step=10, azimuths=args.azimuths, tile=args.tile)
+        run_cli(dem, center, tiny, work / "warm.zarr")
+        t_cli_fixed = run_cli(dem, center, tiny, work / "tiny.zarr")
+        t_cli = run_cli(dem, center, args, work / "cli.zarr")
+
+        svc = Service(work / "data", args.workers)
+        try:
+            with open(dem, "rb") as fh:
+                d = svc.client.post("/v1/dems", files={"file": (Path(dem).name, fh)}).json()
+            base = {"kind": "skyline_db", "dem_id": d["id"], "center": list(center), "azimuths": args.azimuths,
+                    "tile_size": args.tile, "camera_height_m": 2.0}
+            t0 = time.perf_counter()
+            svc.wait(svc.submit({**base, "size_m": 20, "step_m": 10}))  # warm-up: cluster up, workers compiled
+            t_warm = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            svc.wait(svc.submit({**base, "size_m": 20, "step_m": 10, "camera_height_m": 2.5}))  # fixed cost
+            t_svc_fixed = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            job = svc.wait(svc.submit({**base, "size_m": args.size, "step_m": args.step}))
+            t_svc = time.perf_counter() - t0
+            assert job["state"] == "done", job
+            # latency while a larger job renders
+            big = svc.submit({**base, "size_m": args.size * 2, "step_m": args.step})
+            svc.wait(big, states=("running", "done", "failed"))
+            time.sleep(1.0)
+            lat, running = status_latency(svc, big, concurrency=args.concurrency, rounds=args.rounds)
+            svc.client.delete(f"/v1/jobs/{big}")
+        finally:
+            svc.stop()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    print(f"\n### Render service ({date}, {os.cpu_count()} cores shared, DEM {args.dem})\n")
+    print(f"Grid {args.size:g} m at {args.step:g} m = {positions} positions x {args.azimuths} azimuths, "
+          f"tiles of {args.tile}, service with {args.workers} worker processes.\n")
+    r_cli, r_svc = positions / max(t_cli - t_cli_fixed, 1e-9), positions / max(t_svc - t_svc_fixed, 1e-9)
+    print("| run | wall time (s) | fixed cost (s, 3 x 3 grid) | positions/s end to end | positions/s beyond fixed |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    print(f"| CLI `skyloc db render` (process start, imports, terrain build) | {t_cli:.1f} | {t_cli_fixed:.1f} | "
+          f"{positions / t_cli:,.0f} | {r_cli:,.0f} |")
+    print(f"| service: POST to done (terrain build as a task, warm workers) | {t_svc:.1f} | {t_svc_fixed:.1f} | "
+          f"{positions / t_svc:,.0f} | {r_svc:,.0f} |")
+    print(f"\nFirst tiny job after the service started (cluster start, workers load numba): {t_warm:.1f} s.")
+    print(f"Service overhead vs CLI, end to end: {100 * (t_svc / t_cli - 1):+.1f} %; rendering throughput "
+          f"beyond the fixed costs: {100 * (r_cli / r_svc - 1):+.1f} % (target <= +10 %).\n")
+    q = np.percentile(lat * 1000, [50, 99])
+    print(f"| status latency, {args.rounds} x {args.concurrency} concurrent GET /v1/jobs/{{id}} | p50 (ms) | "
+          "p99 (ms) | max (ms) |")
+    print("| --- | ---: | ---: | ---: |")
+    print(f"| while a job renders{'' if running else ' (job finished during the test)'} | {q[0]:.1f} | {q[1]:.1f} | "
+          f"{lat.max() * 1000:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
