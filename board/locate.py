@@ -166,6 +166,30 @@ def _coarse_init(db: SkyDB, q, row: int, col: int, allowed, level: tuple[float, 
     return {"row": float(row), "col": float(col), "heading": h, "pitch": float(pitch), "roll": float(roll)}
 
 
+def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt_prior, region: Region,
+                 max_moves: int = 6) -> tuple[Refined, LocalDB]:
+    """Refine from node (r, c) within +-1.5 nodes; while the optimum sits on that box's edge, move the box.
+
+    Lets the refinement follow a long, flat valley of the score instead of stopping at the edge
+    of the first window.  Positions stay inside the grid.
+    """
+    g = db.grid
+    seen_nodes = set()
+    for _ in range(max_moves):
+        seen_nodes.add((r, c))
+        local = _local_db(db, r, c)
+        bounds = {"row": (max(r - 1.5, 0), min(r + 1.5, g.ny - 1)), "col": (max(c - 1.5, 0), min(c + 1.5, g.nx - 1))}
+        ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
+                     bounds=bounds)
+        v = ref.values
+        at_edge = any(min(v[k] - lo, hi - v[k]) < 1e-6 for k, (lo, hi) in bounds.items())
+        nr, nc = int(round(v["row"])), int(round(v["col"]))
+        if not at_edge or (nr, nc) in seen_nodes or (nr, nc) == (r, c):
+            break
+        r, c, init = nr, nc, dict(v)
+    return ref, local
+
+
 def _allowed_shifts(n: int, db_start: float, query_start: float, prior: float, window: float) -> np.ndarray:
     h = heading_deg(np.arange(n), n=n, db_start_deg=db_start, query_start_deg=query_start)
     return np.abs(wrap_deg180(h - prior)) <= window + 1e-9
@@ -257,11 +281,8 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
             if smap.score[r - smap.region.row0, c - smap.region.col0] > CANDIDATE_FACTOR * s0 + 1e-12:
                 break
             init = _coarse_init(db, q, r, c, allowed, level, q0)
-            local = _local_db(db, r, c)
-            free = PARAMS if model == "tilt" else ("row", "col", "heading")
-            bounds = {"row": (max(r - 1.5, 0), min(r + 1.5, g.ny - 1)), "col": (max(c - 1.5, 0), min(c + 1.5, g.nx - 1))}
-            ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
-                         bounds=bounds)
+            ref, local = _walk_refine(db, r, c, init, theta, el, free=PARAMS if model == "tilt" else
+                                      ("row", "col", "heading"), tilt_prior=tilt_prior, region=region)
             if best is None or ref.cost < best[0].cost:
                 best = (ref, local)
         return best
@@ -280,6 +301,41 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
         elif smap2 is not None:
             smap = smap2
     return _make_fix(db, skyline, q, smap, ref, local, mode=mode, th=th, t0=t0)
+
+
+#: bilinear interpolation error at mid-cell relative to the error of predicting a node from its two
+#: neighbours: 1/4 for smoothly varying skylines, about 1/2 where silhouettes jump; we take the latter
+INTERP_ERROR_FACTOR = 1.0
+
+
+def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.ndarray) -> np.ndarray:
+    """Covariance of the parameter bias caused by the database's bilinear interpolation error here.
+
+    The error of predicting a node's skyline from its two neighbours (along rows, along columns
+    and both diagonals) is read at the fix's azimuths, scaled to a mid-cell error and propagated
+    through the least-squares fit: ``delta = (J^T J)^-1 J^T eps``.  Systematic errors like these
+    are what a noise-only covariance misses.
+    """
+    nr, nc, _ = local.el.shape
+    if "row" not in ref.free or nr < 3 or nc < 3:
+        return np.zeros((len(ref.free),) * 2)
+    v = ref.values
+    i = int(np.clip(round(v["row"] - local.row0), 1, nr - 2))
+    j = int(np.clip(round(v["col"] - local.col0), 1, nc - 2))
+    e = local.el
+    az = ref.enu_az_deg
+    try:
+        pinv = np.linalg.inv(info_unscaled)
+    except np.linalg.LinAlgError:
+        return np.zeros((len(ref.free),) * 2)
+    out = np.zeros((len(ref.free),) * 2)
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        eps = e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj])
+        ej = local.sample(eps, az) * INTERP_ERROR_FACTOR
+        ej = ej - ej.mean()
+        delta = pinv @ (ref.jac.T @ ej)
+        out += np.outer(delta, delta)
+    return out / 2.0  # four directions, two independent ones
 
 
 def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refined, local: LocalDB, *, mode: str,
@@ -304,6 +360,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     def var(name):
         return float(cov[idx[name], idx[name]]) if name in idx else 0.0
 
+    cov = cov + _interpolation_bias_cov(local, ref, info_unscaled=J.T @ J + ref.prior_info)
     cov_xy = np.zeros((2, 2))
     if "row" in idx:
         T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)

@@ -37,7 +37,7 @@ class MountainField:
         d = np.exp(rng.uniform(np.log(r_min), np.log(r_max), n_hills))
         a = rng.uniform(0, 2 * np.pi, n_hills)
         h = d * np.tan(np.radians(rng.uniform(1.0, 12.0, n_hills))) + d ** 2 / (2 * 3_389_500.0)
-        w = d * rng.uniform(0.03, 0.25, n_hills)
+        w = d * rng.uniform(0.03, 0.22, n_hills)  # W << d: the hills never reach the observer
         return cls(center[0] + d * np.sin(a), center[1] + d * np.cos(a), h, w)
 
     def horizon(self, x, y, az_deg) -> np.ndarray:

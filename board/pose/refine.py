@@ -75,6 +75,12 @@ class Refined:
     free: tuple[str, ...]
     prior_info: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     n_iter: int = 0
+    enu_az_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def _enu_az(vb: np.ndarray, v: dict) -> np.ndarray:
+    u = vb @ rotation_enu_from_camera(v["heading"], v["pitch"], v["roll"]).T
+    return np.degrees(np.arctan2(u[:, 0], u[:, 1]))
 
 
 def _residual(local: LocalDB, vb: np.ndarray, v: dict) -> tuple[np.ndarray, float]:
@@ -160,4 +166,4 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
     n = res.size
     pinfo = J[n:].T @ J[n:] if J.shape[0] > n else np.zeros((len(free), len(free)))
     v["heading"] = float(np.mod(v["heading"], 360.0))
-    return Refined(v, mu, float(res @ res), res, J[:n], free, pinfo, it)
+    return Refined(v, mu, float(res @ res), res, J[:n], free, pinfo, it, _enu_az(vb, v))
