@@ -14,6 +14,11 @@ skyline azimuth ``start + j * step`` (a point sample, as the database defines it
    from above it);
 2. a fine pass at ``deg_per_px`` over that bracket only.
 
+The previous position's skyline range (plus ``band_margin_deg``) is tried first as the band: when
+every column has sky in its top row and terrain in the band, the boundaries are all inside it and
+the coarse pass is skipped (one render per position instead of two).  Band rows sit on multiples
+of ``deg_per_px`` so both paths give the same pixels.
+
 Per column the boundary is the top edge of the first terrain pixel, refined to sub-pixel
 precision by the coverage of the boundary pixels when the image is anti-aliased (``samples > 1``):
 ``el = el_top - deg_per_px * (a + sum(1 - v[a:b]))`` with ``a`` the first row with any terrain and
@@ -56,6 +61,7 @@ class BlenderSkylineOptions:
     columns_per_sample : image columns per skyline azimuth sample (1: one column exactly on each sample)
     samples : Cycles samples per pixel (1: exact binary; > 1: box-filtered coverage, sub-pixel)
     refine_factor : near-field cells split into factor x factor quads on the bilinear surface
+    band_margin_deg : margin around the previous position's skyline range tried before a coarse pass
     chunk_cells : terrain mesh chunk size, quads a side
     """
 
@@ -64,6 +70,7 @@ class BlenderSkylineOptions:
     columns_per_sample: int = 1
     samples: int = 1
     refine_factor: int = 4
+    band_margin_deg: float = 1.0
     chunk_cells: int = 256
 
     def __post_init__(self) -> None:
@@ -140,6 +147,7 @@ class _Session:
         self.terrain_ref: weakref.ref | None = None
         self.key: tuple | None = None
         self.token = uuid.uuid4().hex
+        self.last_band: tuple[float, float] | None = None
         self.tmpdir = Path(tempfile.mkdtemp(prefix="skyloc-blender-"))
 
 
@@ -184,7 +192,6 @@ def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: 
 
     az = np.asarray(azimuths_deg, dtype=float)
     n_az = az.size
-    step = 360.0 / n_az
     try:
         z = sample_height(terrain, x, y) + camera_height_m
     except NoDataError as exc:
@@ -199,27 +206,46 @@ def render_position(terrain: MultiResTerrain, x: float, y: float, azimuths_deg: 
         clip = float(max_distance_m) if max_distance_m else 1.0e8     # ray length ~ horizontal distance
         if cam.data.clip_end != clip:
             cam.data.clip_end = clip
-        cdp = options.coarse_deg_per_px
-        hc = int(round(180.0 / cdp))
-        coarse_path = S.render_equirect(_SESSION.tmpdir / "coarse.png", width=w, height=hc,
-                                        el_range_deg=(-90.0, 90.0))
-        coarse = S.read_image(coarse_path)
         dpp = options.deg_per_px
-        lo, hi = bracket_band(coarse, 180.0 / hc, pad_deg=2 * dpp)
-        lo = max(-90.0, math.floor(lo / dpp) * dpp)
-        hi = min(90.0, math.ceil(hi / dpp) * dpp)
-        hf = max(1, int(round((hi - lo) / dpp)))
-        depth = "16" if options.samples > 1 else "8"
-        fine_path = S.render_equirect(_SESSION.tmpdir / "fine.png", width=w, height=hf, el_range_deg=(lo, hi),
-                                      color_depth=depth)
-        fine = S.read_image(fine_path)
-        el_cols, _, empty = column_boundaries(fine, hi, (hi - lo) / hf)
+        fine = None
+        if _SESSION.last_band is not None:     # try the previous position's band first: skylines are similar
+            lo, hi = _snap_band(_SESSION.last_band[0] - options.band_margin_deg,
+                                _SESSION.last_band[1] + options.band_margin_deg, dpp)
+            fine, top = _render_band(S, w, lo, hi, dpp, options.samples)
+            el_cols, clipped, empty = column_boundaries(fine, top, dpp)
+            if (clipped.any() and top < 90.0 - 1e-9) or (empty.any() and lo > -90.0 + 1e-9):
+                fine = None                    # some boundary lies outside: bracket it properly
+        if fine is None:
+            hc = int(round(180.0 / options.coarse_deg_per_px))
+            coarse = S.read_image(S.render_equirect(_SESSION.tmpdir / "coarse.png", width=w, height=hc,
+                                                    el_range_deg=(-90.0, 90.0)))
+            lo, hi = _snap_band(*bracket_band(coarse, 180.0 / hc, pad_deg=2 * dpp), dpp)
+            fine, top = _render_band(S, w, lo, hi, dpp, options.samples)
+            el_cols, clipped, empty = column_boundaries(fine, top, dpp)
+        if (~empty).any():
+            _SESSION.last_band = (float(el_cols[~empty].min()), float(el_cols[~empty].max()))
         az_cols = float(az[0]) + np.arange(w) * col_step
         dist_cols = _horizon_distances(cam, az_cols - heading, el_cols - 0.5 * dpp, empty, clip)
     if options.columns_per_sample == 1:
         return el_cols.astype(np.float32), dist_cols.astype(np.float32)
     return (sample_columns(az_cols, el_cols, az).astype(np.float32),
             sample_columns(az_cols, dist_cols, az).astype(np.float32))
+
+
+def _snap_band(lo: float, hi: float, dpp: float) -> tuple[float, float]:
+    """Band edges on multiples of ``dpp`` (the same pixel rows whatever the band), within [-90, 90]."""
+    lo = max(-90.0, math.floor(lo / dpp) * dpp)
+    hi = min(90.0, math.ceil(hi / dpp) * dpp)
+    return lo, max(hi, lo + dpp)
+
+
+def _render_band(S, w: int, lo: float, hi: float, dpp: float, samples: int) -> tuple[np.ndarray, float]:
+    """Binary (or coverage) band image of rows ``dpp`` tall from ``lo`` up; returns (image, top edge)."""
+    h = max(1, int(round((hi - lo) / dpp)))
+    top = lo + h * dpp
+    path = S.render_equirect(_SESSION.tmpdir / "fine.png", width=w, height=h, el_range_deg=(lo, top),
+                             color_depth="16" if samples > 1 else "8")
+    return S.read_image(path), top
 
 
 def _horizon_distances(cam, az_rel_deg: np.ndarray, el_deg: np.ndarray, empty: np.ndarray,

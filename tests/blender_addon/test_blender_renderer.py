@@ -94,3 +94,29 @@ def test_render_tile_matches_brute_force_and_ray_marcher_on_a_real_dem(real_dem)
     assert np.median(d_ref) <= 0.05 and np.percentile(d_ref, 99) <= 0.25
     d_rm = np.abs(bl - rm).ravel()
     assert np.median(d_rm) <= 0.05
+
+
+@pytest.mark.blender
+def test_band_reuse_gives_the_same_skyline_as_a_fresh_coarse_pass():
+    """The previous position's band is only a guess: results do not depend on the rendering order."""
+    pytest.importorskip("bpy")
+    from blender_addon import skyline_renderer as sr
+    from blender_addon.terrain.model import MultiResTerrain, TerrainLevel
+    from board.conventions import BODIES
+
+    n, cell = 200, 1.0
+    c = -100 + (np.arange(n) + 0.5) * cell
+    X, Y = np.meshgrid(c, -c)
+    z = 12 * np.exp(-(((np.hypot(X, Y) - 60) / 8) ** 2)) + 25 * (X > 80)   # rim + a cliff to the east
+    terrain = MultiResTerrain([TerrainLevel(z.astype(np.float32), -100, 100, cell)], "", BODIES["mars"], (0, 0))
+    az = np.arange(0, 360, 2.0)
+    kw = dict(camera_height_m=2.0, radius_m=BODIES["mars"].radius_m, refine_half_m=30.0)
+    sr._SESSION.last_band = None
+    fresh = sr.render_position(terrain, 20.0, 5.0, az, **kw)[0]
+    sr._SESSION.last_band = (-30.0, -29.0)                        # a wrong guess: must fall back
+    wrong = sr.render_position(terrain, 20.0, 5.0, az, **kw)[0]
+    sr.render_position(terrain, -20.0, -10.0, az, **kw)           # a neighbour's band
+    reused = sr.render_position(terrain, 20.0, 5.0, az, **kw)[0]
+    np.testing.assert_array_equal(fresh, wrong)
+    np.testing.assert_array_equal(fresh, reused)
+    assert np.ptp(fresh) > 5.0
