@@ -64,7 +64,7 @@ def test_skyline_of_a_ray_marched_horizon(terrain, fine_horizon, heading):
         t = x - np.floor(x)
         return (1 - t) * fine[i0] + t * fine[(i0 + 1) % 3600]
 
-    g = PanoramaGeometry.full_circle(3600, 600, elevation_top_deg=25.0, elevation_bottom_deg=-5.0)
+    g = PanoramaGeometry.full_circle(1800, 300, elevation_top_deg=25.0, elevation_bottom_deg=-5.0)
     img = render_directions(g.azimuths_deg()[None, :], g.elevations_deg()[:, None], skyline,
                             pixel_deg=g.elevation_step_deg)
     img = img + np.random.default_rng(0).normal(0, 0.01, img.shape)
