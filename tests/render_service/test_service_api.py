@@ -269,3 +269,15 @@ def test_token_never_in_logs_or_responses(tmp_path, caplog):
 def test_no_cors_by_default(app_client):
     r = app_client.options("/v1/jobs", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "GET"})
     assert "access-control-allow-origin" not in {k.lower() for k in r.headers}
+
+
+def test_dataset_job_accepted_for_a_known_scene(app_client):
+    if importlib.util.find_spec("blender_addon.core.dataset") is None:
+        r = app_client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"})
+        assert r.status_code == 501 and r.json()["code"] == "not_available"
+        return
+    r = app_client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"})
+    assert r.status_code == 202, r.text
+    j = r.json()
+    assert (j["kind"], j["state"], j["tiles_total"]) == ("dataset", "queued", 1)
+    assert app_client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"}).json()["id"] == j["id"]
