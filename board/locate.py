@@ -22,7 +22,7 @@ from board.match.search import Region, ScoreMap, fill_missing, search
 from board.pose.confidence import Thresholds, effective_samples, ellipse_95, map_likelihood
 from board.pose.refine import PARAMS, LocalDB, Refined, refine
 from board.pose.sphere import enu_az_el, harmonic_to_tilt_matrix, level_skyline
-from board.skydb import SkyDB, Tile
+from board.skydb import GridSpec, SkyDB, Tile
 from board.skyline import Skyline
 
 log = logging.getLogger(__name__)
@@ -76,6 +76,8 @@ class Fix:
     query_theta_deg: np.ndarray | None = field(default=None, repr=False)
     query_el_deg: np.ndarray | None = field(default=None, repr=False)
     db_skyline_deg: np.ndarray | None = field(default=None, repr=False)
+    grid: GridSpec | None = field(default=None, repr=False)
+    db_azimuth_start_deg: float = 0.0
 
     def to_json_dict(self) -> dict:
         """JSON-able dict: the keys of the issue plus the confidence details."""
@@ -405,5 +407,5 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         coverage_deg=skyline.coverage_deg, n_scored=0 if smap is None else smap.n_scored,
         n_pruned=0 if smap is None else smap.n_pruned, grid_row=float(v["row"]), grid_col=float(v["col"]),
         score_map=smap, query_theta_deg=skyline.azimuths_deg(), query_el_deg=skyline.elevation_deg,
-        db_skyline_deg=local.skyline_at(v["row"], v["col"]),
+        db_skyline_deg=local.skyline_at(v["row"], v["col"]), grid=g, db_azimuth_start_deg=db.meta.azimuth_start_deg,
     )
