@@ -144,3 +144,43 @@ def test_sim_panorama_cli_writes_a_valid_binary_folder(tmp_path):
     assert pano.truth.pitch_deg == 6.0 and pano.truth.roll_deg == -5.0
     bad = CliRunner().invoke(main, [*args[:-3], "--preset", "clean", "--binary", "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 1 and not (tmp_path / "bad").exists()
+
+
+def test_perspective_frame_matches_the_camera_model(tmp_path):
+    """render_frame with an off-centre principal point: the crater's skyline lies where
+    board.camera.CameraModel.unproject + the pose put it (within 1 px per column)."""
+    import dataclasses
+
+    from board.camera import CameraModel
+
+    terrain = _crater_terrain()
+    S.reset_scene()
+    S.build_terrain(terrain, refine_half_m=30.0)
+    x, y, heading, pitch, roll = -4.0, 6.0, 250.0, 9.0, 5.0
+    z = sample_height(terrain, x, y) + 1.2
+    S.place_camera(x, y, z, heading, pitch, roll)
+    S.configure_binary()
+    model = dataclasses.replace(CameraModel.from_fov(160, 120, 70.0), cx=70.5, cy=66.0)
+    img = S.read_image(S.render_frame(tmp_path / "f.png", model, color_mode="BW"))
+    assert img.shape == (120, 160) and set(np.unique(img).tolist()) <= {0.0, 1.0}
+    t = img >= 0.5
+    got = np.where(t.any(0), np.argmax(t, axis=0), 120).astype(float)   # first terrain row (its top edge)
+    rot = rotation_enu_from_camera(heading, pitch, roll)
+    cam = np.array([x, y, z])
+    u = np.arange(160, dtype=float)
+    lo, hi = np.full(160, -0.5), np.full(160, 119.5)            # v of pixel-centre rows (OpenCV)
+    ts = np.arange(0.05, 95, 0.05)[None, :]
+    for _ in range(20):
+        v = (lo + hi) / 2
+        dc = model.unproject(u, v)                              # camera frame: x right, y down, z forward
+        body = np.stack([dc[:, 2], -dc[:, 0], -dc[:, 1]], -1)
+        d = body @ rot.T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        px, py, pz = (cam[i] + d[:, i:i + 1] * ts for i in range(3))
+        hit = np.any((np.hypot(px, py) < 95) & (pz < _crater_height(px, py)), axis=1)
+        hi = np.where(hit, v, hi)
+        lo = np.where(hit, lo, v)
+    ref = (lo + hi) / 2 + 0.5                                   # boundary in row-edge units (row r spans r..r+1)
+    inside = (ref > 1) & (ref < 119)
+    assert inside.sum() > 100
+    assert np.max(np.abs(got[inside] - ref[inside])) <= 1.0
