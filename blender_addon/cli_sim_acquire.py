@@ -52,7 +52,7 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
     """Render a simulated NavCam acquisition (frames + acquisition.json with ground truth)."""
     from tqdm import tqdm
 
-    from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator, heading_ok
+    from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator, wrap_heading
     from blender_addon.core.cameras import get_preset
     from blender_addon.core.degrade import get_degradation
     from blender_addon.core.plans import plan_frames
@@ -68,7 +68,7 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
     rock_r = deg.rocks.radius_m if deg.rocks.density_per_m2 > 0 else 0.0
     sim = Simulator(path, (x, y), grid_half_m=max(50.0, rock_r + 20.0), max_radius_m=radius_m, body=body)
     sim.dem_spec = str(dem)
-    job = AcquisitionJob(Pose(x, y, heading_ok(heading_deg), pitch_deg, roll_deg), cam, plan, deg, seed=seed,
+    job = AcquisitionJob(Pose(x, y, wrap_heading(heading_deg), pitch_deg, roll_deg), cam, plan, deg, seed=seed,
                          samples=samples)
     with tqdm(total=plan.n_frames, desc="sim acquire", unit="frame", disable=None) as bar:
         out = sim.acquire(job, out_dir, progress=lambda done, total, msg: bar.update(done - bar.n))

@@ -173,6 +173,7 @@ class Simulator:
                                     seed=job.seed, samples=job.samples, denoise=job.denoise)
         z = self.ground_z(p.x, p.y) + job.camera.mast_height_m
         sun_enu = np.asarray(info.sun_dir_enu)
+        sun_seen = (not deg.binary) and info.sun_elevation_deg > 0 and dressing.sun_visible(p.x, p.y, z, sun_enu)
         images = []
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix="skyloc-frames-", dir=work_dir) as tmp:
@@ -185,7 +186,8 @@ class Simulator:
                 R = rotation_enu_from_frame(pan, tilt, heading_deg=p.heading_deg, pitch_deg=p.pitch_deg,
                                             roll_deg=p.roll_deg)
                 rng = np.random.default_rng(frame_seed_sequence(job.seed, i))
-                images.append(degrade_frame(lin, pinhole, cam, deg, rng, sun_dir_cam=sun_enu @ R))
+                images.append(degrade_frame(lin, pinhole, cam, deg, rng,
+                                            sun_dir_cam=(sun_enu @ R) if sun_seen else None))
                 if progress is not None:
                     progress(i + 1, job.plan.n_frames, f"frame {i + 1}/{job.plan.n_frames}")
         meta = {
@@ -199,7 +201,7 @@ class Simulator:
             "samples": int(job.samples),
             "denoise": bool(job.denoise),
             "render_pinhole": pinhole.to_dict(),
-            "dressing": info.to_dict(),
+            "dressing": {**info.to_dict(), "sun_visible": bool(sun_seen)},
             "dem_sha256": self.terrain.dem_sha256,
             "render_seconds": round(time.perf_counter() - t0, 3),
             **job.meta,
@@ -242,7 +244,7 @@ def job_dict(job: AcquisitionJob) -> dict:
             "degradation": job.degradation.name, "seed": int(job.seed), "samples": int(job.samples)}
 
 
-def heading_ok(deg: float) -> float:
+def wrap_heading(deg: float) -> float:
     """Validate and wrap a heading in degrees."""
     if not math.isfinite(deg):
         raise InvalidInputError(f"heading {deg} must be a finite number of degrees")

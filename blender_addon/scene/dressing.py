@@ -291,6 +291,23 @@ def _triangle_mesh(name: str, verts: np.ndarray, tris: np.ndarray) -> bpy.types.
     return me
 
 
+def sun_visible(x: float, y: float, z: float, sun_enu, *, scene: bpy.types.Scene | None = None) -> bool:
+    """True when nothing in the scene (terrain, rocks) hides the sun from world point (x, y, z) metres.
+
+    Veiling glare only exists when sunlight reaches the lens; a sun behind a hill makes none.
+    """
+    scene = state.get_scene(scene)
+    off = state.get_offset(scene)
+    radius, k = state.get_curvature(scene)
+    from mathutils import Vector
+
+    origin = Vector((x - off.x_m, y - off.y_m, float(scene_z(z, x, y, off, radius, k))))
+    direction = Vector(tuple(float(v) for v in sun_enu)).normalized()
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    hit = scene.ray_cast(depsgraph, origin + direction * 0.05, direction)[0]
+    return not hit
+
+
 def clear_dressing(scene: bpy.types.Scene | None = None) -> None:
     """Remove the rocks (the materials, world and sun are rebuilt in place by :func:`dress_scene`)."""
     coll = bpy.data.collections.get(DRESSING_COLLECTION)

@@ -114,6 +114,19 @@ def test_skyline_lands_where_the_camera_model_says(ring, tmp_path):
     assert errors.mean() < 0.4 and errors.max() < 1.4, (errors.mean(), errors.max())
 
 
+def test_sun_behind_the_wall_is_hidden(ring):
+    from blender_addon.scene.dressing import sun_visible
+    from board.conventions import enu_from_az_el_deg
+
+    sim, z = ring
+    sim._ensure_scene()
+    az = np.arange(0.0, 360.0, 30.0)
+    wall = _true_horizon(z, 2.05, az)
+    for a, w in zip(az, wall):
+        assert not sun_visible(X0, Y0, 2.05, enu_from_az_el_deg(a, w - 0.7))
+        assert sun_visible(X0, Y0, 2.05, enu_from_az_el_deg(a, w + 0.7))
+
+
 def test_seeds_reproduce_bytes_and_manifest_validates(ring, tmp_path):
     import jsonschema
 
