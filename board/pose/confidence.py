@@ -42,19 +42,23 @@ class Thresholds:
 
 
 def effective_samples(residual: np.ndarray) -> float:
-    """Effective number of independent samples of a correlated residual (Bartlett, initial positive sequence)."""
+    """Effective number of independent samples of a correlated residual.
+
+    ``n / (1 + 2 sum_k rho_k)`` with the autocorrelations ``rho_k`` summed by Geyer's initial
+    positive sequence (pairs ``rho_(2m-1) + rho_(2m)`` while positive).  Degrees in, count out.
+    """
     r = np.asarray(residual, float) - np.mean(residual)
     n = r.size
     var = float(r @ r) / n
     if n < 4 or var <= 0:
         return float(max(n, 1))
     acc = 0.0
-    for k in range(1, n // 2):
-        rho = float(r[:-k] @ r[k:]) / (n * var)
-        if rho <= 0.05:
+    for k in range(1, n // 2 - 1, 2):
+        pair = (float(r[:-k] @ r[k:]) + float(r[:-(k + 1)] @ r[k + 1:])) / (n * var)
+        if pair <= 0:
             break
-        acc += rho
-    return float(n / (1.0 + 2.0 * acc))
+        acc += pair
+    return float(max(n / (1.0 + 2.0 * acc), 1.0))
 
 
 def ellipse_95(cov: np.ndarray) -> tuple[float, float, float]:
@@ -87,15 +91,18 @@ class MapLikelihood:
 
 def map_likelihood(score: np.ndarray, x: np.ndarray, y: np.ndarray, *, best_xy: tuple[float, float],
                    s2: float, radius_m: float) -> MapLikelihood:
-    """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2), positions x, y (metres)."""
+    """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2), positions x, y (metres).
+
+    ``cov_xy`` is the weighted second moment of the positions about ``best_xy`` (the fix).
+    """
     ok = np.isfinite(score)
     s = score[ok]
     xs, ys = x[ok], y[ok]
     smin = float(s.min())
     w = np.exp(-(s - smin) / (2.0 * max(s2, 1e-12)))
     w /= w.sum()
-    mx, my = float(w @ xs), float(w @ ys)
-    dx, dy = xs - mx, ys - my
+    # second moment about the fix (not the mean): mass at another place widens the region around the fix
+    dx, dy = xs - best_xy[0], ys - best_xy[1]
     cov = np.array([[w @ (dx * dx), w @ (dx * dy)], [w @ (dx * dy), w @ (dy * dy)]])
     far = np.hypot(xs - best_xy[0], ys - best_xy[1]) > radius_m
     far_mass = float(w[far].sum())
