@@ -60,7 +60,7 @@ class BlenderSkylineOptions:
     coarse_deg_per_px : elevation resolution of the bracketing pass, degrees per pixel
     columns_per_sample : image columns per skyline azimuth sample (1: one column exactly on each sample)
     samples : Cycles samples per pixel (1: exact binary; > 1: box-filtered coverage, sub-pixel)
-    refine_factor : near-field cells split into factor x factor quads on the bilinear surface
+    refine : split near-field cells into quads on the bilinear surface (rings, see terrain_mesh)
     band_margin_deg : margin around the previous position's skyline range tried before a coarse pass
     chunk_cells : terrain mesh chunk size, quads a side
     """
@@ -69,7 +69,7 @@ class BlenderSkylineOptions:
     coarse_deg_per_px: float = 1.0
     columns_per_sample: int = 1
     samples: int = 1
-    refine_factor: int = 4
+    refine: bool = True
     band_margin_deg: float = 1.0
     chunk_cells: int = 256
 
@@ -167,7 +167,7 @@ def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float
     if not current:
         S.reset_scene()
         S.build_terrain(terrain, curvature=True, radius_m=radius_m, refraction_k=refraction_k,
-                        refine_factor=options.refine_factor, refine_half_m=refine_half_m,
+                        refine=options.refine, refine_half_m=refine_half_m,
                         chunk_cells=options.chunk_cells)
         S.configure_binary(samples=options.samples)
         _SESSION.terrain_ref = weakref.ref(terrain)

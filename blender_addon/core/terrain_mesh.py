@@ -249,37 +249,29 @@ def _chunk(lev, k, sub, qr0, qc0, qr1, qc1, h_edge, h_qr, v_edge, v_qc, offset, 
                      vertices=verts.astype(np.float32), quads=quads.astype(np.int32), n_skirt=int(n_skirt))
 
 
-def refine_near_field(terrain: MultiResTerrain, *, half_m: float | None = None, margin_cells: int = 32,
-                      factor: int = 4, max_quads: int = 4_000_000) -> MultiResTerrain:
-    """A terrain with an extra, finer level: level 0 bilinearly upsampled near the site.
+#: (factor, margin in level-0 cells) of the refinement rings, finest first: cells within the grid
+#: plus 4 cells are split 8 x 8, out to 16 cells 4 x 4, out to 64 cells 2 x 2.
+DEFAULT_RINGS: tuple[tuple[int, int], ...] = ((8, 4), (4, 16), (2, 64))
+DEFAULT_REFINE_BUDGET = 6_000_000
 
-    A quad split into two triangles departs from the bilinear surface the ray-marcher samples by up
-    to a quarter of the cell's twist ``|z00 + z11 - z01 - z10| / 4``, which seen from a camera a few
-    cells away is several tenths of a degree.  Splitting each cell into ``factor x factor`` quads
-    whose vertices lie on the bilinear surface divides that by ``factor**2``.  The refined area is
-    the square of half-side ``half_m + margin_cells`` cells around the site (``half_m`` default: the
-    terrain's ``meta["grid_half_m"]``, else 0), clipped to level 0 and aligned to its cell centres,
-    so level 0's hole (see :func:`quad_mask`) meets it without a gap.  The factor is lowered until
-    the refined area has at most ``max_quads`` quads (1: nothing refined, the terrain is returned).
-    """
-    lev = terrain.levels[0]
+
+def _cell_rect(lev: TerrainLevel, site_xy, reach_m: float) -> tuple[int, int, int, int]:
+    """(c0, c1, r0, r1): level-0 cell-centre indices spanning the square of half-side ``reach_m``, clipped."""
     rows, cols = lev.array.shape
-    if half_m is None:
-        half_m = float(terrain.meta.get("grid_half_m", 0.0) or 0.0)
     h = lev.cell_m
-    sx, sy = (float(v) for v in terrain.site_xy)
-    reach = half_m + margin_cells * h
-    c0 = max(0, int(math.floor((sx - reach - lev.x0) / h - 0.5)))
-    c1 = min(cols - 1, int(math.ceil((sx + reach - lev.x0) / h - 0.5)))
-    r0 = max(0, int(math.floor((lev.y0 - (sy + reach)) / h - 0.5)))
-    r1 = min(rows - 1, int(math.ceil((lev.y0 - (sy - reach)) / h - 0.5)))
-    nq = (c1 - c0) * (r1 - r0)
-    f = int(factor)
-    while f > 1 and nq * f * f > max_quads:
-        f -= 1
-    if f <= 1 or nq <= 0:
-        return terrain
-    # vertex (i, j) of the refined grid sits at fractional cell (r0 + i / f, c0 + j / f) of level 0
+    sx, sy = site_xy
+    c0 = max(0, int(math.floor((sx - reach_m - lev.x0) / h - 0.5)))
+    c1 = min(cols - 1, int(math.ceil((sx + reach_m - lev.x0) / h - 0.5)))
+    r0 = max(0, int(math.floor((lev.y0 - (sy + reach_m)) / h - 0.5)))
+    r1 = min(rows - 1, int(math.ceil((lev.y0 - (sy - reach_m)) / h - 0.5)))
+    return c0, c1, r0, r1
+
+
+def _upsample(lev: TerrainLevel, rect: tuple[int, int, int, int], f: int) -> TerrainLevel:
+    """Level-0 cells ``rect`` split ``f x f``, vertices on the bilinear surface (cell centres aligned)."""
+    c0, c1, r0, r1 = rect
+    rows, cols = lev.array.shape
+    h = lev.cell_m
     u = c0 + np.arange((c1 - c0) * f + 1) / f
     v = r0 + np.arange((r1 - r0) * f + 1) / f
     ci = np.minimum(np.floor(u).astype(int), cols - 2)
@@ -290,11 +282,52 @@ def refine_near_field(terrain: MultiResTerrain, *, half_m: float | None = None, 
     z = ((a[np.ix_(ri, ci)] * (1 - fu) + a[np.ix_(ri, ci + 1)] * fu) * (1 - fv)
          + (a[np.ix_(ri + 1, ci)] * (1 - fu) + a[np.ix_(ri + 1, ci + 1)] * fu) * fv).astype(np.float32)
     fine_cell = h / f
-    fine = TerrainLevel(array=z, x0=lev.x0 + (c0 + 0.5) * h - 0.5 * fine_cell,
+    return TerrainLevel(array=z, x0=lev.x0 + (c0 + 0.5) * h - 0.5 * fine_cell,
                         y0=lev.y0 - (r0 + 0.5) * h + 0.5 * fine_cell, cell_m=fine_cell)
-    log.info("near field refined x%d: %d x %d quads at %.3g m", f, z.shape[1] - 1, z.shape[0] - 1, fine_cell)
-    meta = dict(terrain.meta, refined_factor=f)
-    return MultiResTerrain(levels=[fine, *terrain.levels], crs_wkt=terrain.crs_wkt, body=terrain.body,
+
+
+def refine_near_field(terrain: MultiResTerrain, *, half_m: float | None = None,
+                      rings: tuple[tuple[int, int], ...] = DEFAULT_RINGS,
+                      max_quads: int = DEFAULT_REFINE_BUDGET) -> MultiResTerrain:
+    """A terrain with extra, finer levels: level 0 bilinearly upsampled in rings around the site.
+
+    A quad split into two triangles departs from the bilinear surface the ray-marcher samples by up
+    to a quarter of the cell's twist ``|z00 + z11 - z01 - z10| / 4``; seen from a camera ``d`` away
+    that is an elevation error of up to ``twist / 4d`` radians (degrees on rough 30 m DEMs a cell or
+    two from the camera).  Splitting cells ``f x f`` with vertices on the bilinear surface divides it
+    by ``f**2``.  Ring ``k`` (``rings[k] = (f, margin_cells)``) covers the square of half-side
+    ``half_m + margin_cells`` level-0 cells around the site (``half_m`` default: the terrain's
+    ``meta["grid_half_m"]``, else 0), aligned to level-0 cell centres so that each coarser ring's
+    (and level 0's) hole meets it without a gap (see :func:`quad_mask`); along a shared edge the
+    bilinear surface is linear, so the finer vertices lie on the coarser edge (no cracks).
+    Factors are lowered (ring by ring, finest first) until all rings hold at most ``max_quads``
+    quads; rings whose factor reaches 1 are dropped.
+    """
+    lev = terrain.levels[0]
+    if half_m is None:
+        half_m = float(terrain.meta.get("grid_half_m", 0.0) or 0.0)
+    rects = [_cell_rect(lev, terrain.site_xy, half_m + m * lev.cell_m) for _, m in rings]
+    factors = [int(f) for f, _ in rings]
+
+    def n_quads(fs):
+        total, inner = 0, 0
+        for (c0, c1, r0, r1), f in zip(rects, fs):
+            cells = max(0, c1 - c0) * max(0, r1 - r0)
+            if f > 1:
+                total += (cells - inner) * f * f
+            inner = cells
+        return total
+
+    while n_quads(factors) > max_quads and any(f > 1 for f in factors):
+        k = max(range(len(factors)), key=lambda i: (factors[i], -i))    # largest factor, innermost first
+        factors[k] -= 1
+    extra = [_upsample(lev, rect, f) for rect, f in zip(rects, factors) if f > 1 and rect[1] > rect[0]
+             and rect[3] > rect[2]]
+    if not extra:
+        return terrain
+    log.info("near field refined: factors %s, %d quads", [f for f in factors if f > 1], n_quads(factors))
+    meta = dict(terrain.meta, refined_factors=[f for f in factors if f > 1])
+    return MultiResTerrain(levels=[*extra, *terrain.levels], crs_wkt=terrain.crs_wkt, body=terrain.body,
                            site_xy=terrain.site_xy, dem_sha256=terrain.dem_sha256, meta=meta)
 
 

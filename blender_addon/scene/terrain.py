@@ -75,7 +75,7 @@ def clear_terrain(scene: bpy.types.Scene | None = None) -> None:
 
 def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = None,
                   offset: SceneOffset | None = None, curvature: bool = True, radius_m: float | None = None,
-                  refraction_k: float = 0.0, refine_factor: int = 4, refine_half_m: float | None = None,
+                  refraction_k: float = 0.0, refine: bool = True, refine_half_m: float | None = None,
                   chunk_cells: int = 256, skirt_depth_m: float | None = None,
                   progress: Callable[[float, str], None] | None = None) -> SceneOffset:
     """Build the terrain meshes of every level into the collection ``SkylocTerrain``.
@@ -86,8 +86,9 @@ def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = N
     offset : world position of the scene origin (default: the site at its ground height)
     curvature : drop vertices by ``r^2 (1 - k) / 2R`` (R = ``radius_m``, default the terrain's body radius)
     refraction_k : refraction coefficient (0 on airless bodies)
-    refine_factor, refine_half_m : split level-0 cells near the site into factor x factor quads on
-        the bilinear surface (see :func:`blender_addon.core.terrain_mesh.refine_near_field`; 1: off)
+    refine, refine_half_m : split level-0 cells around the site (rings out from the square of
+        half-side ``refine_half_m``) into quads on the bilinear surface
+        (see :func:`blender_addon.core.terrain_mesh.refine_near_field`)
     chunk_cells : at most this many quads a side per object (bounds memory)
     progress : called with (fraction 0..1, message) after each chunk
 
@@ -105,8 +106,8 @@ def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = N
     t0 = time.perf_counter()
     n_levels = len(terrain.levels)
     n_verts = n_quads = 0
-    if refine_factor > 1:
-        terrain = refine_near_field(terrain, half_m=refine_half_m, factor=refine_factor)
+    if refine:
+        terrain = refine_near_field(terrain, half_m=refine_half_m)
     chunk: MeshChunk
     for chunk in terrain_chunks(terrain, offset=off, radius_m=radius, refraction_k=refraction_k,
                                 chunk_cells=chunk_cells, skirt_depth_m=skirt_depth_m):

@@ -109,7 +109,7 @@ def test_chunks_partition_the_level():
 def test_refinement_lies_on_the_bilinear_surface():
     t = _terrain()
     lev = t.levels[0]
-    ref = refine_near_field(t, half_m=10.0, margin_cells=3, factor=4)
+    ref = refine_near_field(t, half_m=10.0, rings=((4, 3),))
     fine = ref.levels[0]
     assert fine.cell_m == pytest.approx(0.5) and len(ref.levels) == 3
     xs, ys = _centres(lev)
@@ -124,7 +124,17 @@ def test_refinement_lies_on_the_bilinear_surface():
     assert keep.sum() == (lev.array.shape[0] - 1) * (lev.array.shape[1] - 1) - (fine.array.shape[0] - 1) * (
         fine.array.shape[1] - 1) // 16
     # a small budget lowers the factor
-    assert refine_near_field(t, half_m=10.0, margin_cells=3, factor=4, max_quads=200).meta.get("refined_factor", 1) < 4
+    assert refine_near_field(t, half_m=10.0, rings=((4, 3),), max_quads=2000).meta["refined_factors"] == [2]
+    # graded rings: finest inside, each ring's hole meets the next finer ring without overlap
+    graded = refine_near_field(t, half_m=6.0, rings=((4, 2), (2, 6)))
+    assert [lv.cell_m for lv in graded.levels] == [0.5, 1.0, 2.0, 10.0]
+    for k in (1, 2):
+        keep = quad_mask(graded, k)
+        inner = graded.levels[k - 1].array.shape
+        ratio = (graded.levels[k].cell_m / graded.levels[k - 1].cell_m) ** 2
+        assert keep.size - keep.sum() == (inner[0] - 1) * (inner[1] - 1) / ratio
+        for x, y in np.random.default_rng(4).uniform(-20, 20, (30, 2)):
+            assert sample_height(graded, x, y) == pytest.approx(sample_height(t, x, y), abs=1e-4)
 
 
 def test_sample_height_is_bilinear_on_the_finest_level():
