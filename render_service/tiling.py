@@ -236,6 +236,8 @@ class JobRunner:
         self._wake = threading.Event()
         self._ready = threading.Event()
         self._thread = threading.Thread(target=self._main, name="skyloc-job-runner", daemon=True)
+        self._n_workers: int | None = None
+        self._workers_checked = 0.0
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -261,12 +263,19 @@ class JobRunner:
             log.warning("closing Dask: %s", exc)
 
     def n_workers(self) -> int | None:
-        if self.client is None:
-            return None
+        """Workers connected to the scheduler (refreshed by the runner thread about once a second)."""
+        return self._n_workers
+
+    def _refresh_workers(self, *, force: bool = False) -> None:
+        now = time.monotonic()
+        if self.client is None or (not force and now - self._workers_checked < 1.0):
+            return
+        self._workers_checked = now
         try:
-            return len(self.client.scheduler_info(n_workers=-1)["workers"])
-        except Exception:
-            return None
+            self._n_workers = len(self.client.scheduler_info(n_workers=-1)["workers"])
+        except Exception as exc:  # scheduler unreachable: report unknown, keep going
+            log.debug("cannot count workers: %s", exc)
+            self._n_workers = None
 
     def _start_dask(self) -> None:
         from distributed import Client, LocalCluster  # noqa: PLC0415
@@ -293,8 +302,10 @@ class JobRunner:
             log.exception("cannot start Dask; jobs stay queued")
             self._ready.set()
             return
+        self._refresh_workers(force=True)
         self._ready.set()
         while not self._stop.is_set():
+            self._refresh_workers()
             job = self.store.next_active_job()
             if job is None:
                 self._wake.wait(0.5)
@@ -314,6 +325,7 @@ class JobRunner:
 
     # -- helpers -------------------------------------------------------------------------------
     def _check(self, job_id: str) -> None:
+        self._refresh_workers()
         if self._stop.is_set():
             raise _Stop
         if self.store.get_job(job_id=job_id).state == "cancel-requested":
@@ -393,6 +405,7 @@ class JobRunner:
         log.info("job %s: %d of %d tiles to render", job.id, len(queue), len(plan.tiles))
 
         rspec = rjob.spec
+        self._refresh_workers(force=True)
         limit = max(1, (self.n_workers() or 1) * self.settings.max_in_flight_per_worker)
         in_flight: dict = {}
         try:

@@ -206,6 +206,40 @@ def test_kill9_mid_job_resumes_to_an_identical_database(clean_run, work, real_de
         np.testing.assert_array_equal(a.read_tile_raw(t), b.read_tile_raw(t))
 
 
+def _dask_worker_pids(server_pid: int) -> list[int]:
+    pids = []
+    for pid in _children(server_pid):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"spawn_main" in cmd:
+            pids.append(pid)
+    return pids
+
+
+def test_kill9_of_a_worker_mid_job_loses_and_repeats_nothing(server_a, clean_run):
+    _, dem, _, _ = clean_run
+    job_id = server_a.client.post("/v1/jobs", json=job_spec(dem, camera_height_m=1.7)).json()["id"]
+    t_end = time.monotonic() + 240
+    while server_a.client.get(f"/v1/jobs/{job_id}").json()["tiles_done"] < 3 and time.monotonic() < t_end:
+        time.sleep(0.05)
+    workers = _dask_worker_pids(server_a.proc.pid)
+    assert workers, "no Dask worker process found under the server"
+    os.kill(workers[0], 9)
+    assert server_a.client.get(f"/v1/jobs/{job_id}").json()["state"] == "running"  # the kill landed mid-job
+    j = server_a.wait_job(job_id)
+    assert j["state"] == "done", j
+    counts = JobStore(server_a.data_dir / "skyloc.sqlite").render_counts(job_id=job_id)
+    assert len(counts) == 81 and max(counts.values()) == 1, counts
+    db = SkyDB.open(server_a.data_dir / "jobs" / job_id / "db.zarr")
+    assert db.complete and all((db.read_tile_raw(t) != -32768).all() for t in db.tiles)
+    t_end = time.monotonic() + 60
+    while server_a.client.get("/healthz").json()["workers"] != 2 and time.monotonic() < t_end:
+        time.sleep(0.5)
+    assert server_a.client.get("/healthz").json()["workers"] == 2  # the nanny restarted the worker
+
+
 def test_cancel_running_job_publishes_nothing(server_a, clean_run):
     _, dem, _, _ = clean_run
     sub = server_a.client.post("/v1/jobs", json=job_spec(dem, size_m=300, tile_size=8))  # 151 x 151, 361 tiles

@@ -11,7 +11,7 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=HealthOut, summary="Liveness and worker count")
-def healthz(runner=Depends(get_runner)) -> HealthOut:
+async def healthz(runner=Depends(get_runner)) -> HealthOut:
     workers = runner.n_workers() if runner is not None else None
     scheduler = None
     if runner is not None and runner.client is not None:
