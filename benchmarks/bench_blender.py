@@ -108,7 +108,7 @@ def bench_renderers(names: list[str], n_side: int, size_frac: float) -> list[str
         t_bl = time.perf_counter() - t0
         ii, jj = np.meshgrid(np.arange(grid.ny), np.arange(grid.nx), indexing="ij")
         xs, ys = grid.xy(ii, jj)
-        bf = np.stack([reference.brute_force_horizon(dem, x, y, spec, step_cells=0.1)[1]
+        bf = np.stack([reference.brute_force_horizon(dem, x, y, spec, step_cells=0.01)[1]
                        for x, y in zip(xs.ravel(), ys.ravel())]).reshape(bl.shape)
 
         def stats(a, b):
@@ -136,7 +136,7 @@ def main() -> None:
              "", "| binary panoramas (Cycles CPU, 1 sample) | wall time (CPU time: both cores) |", "| --- | --- |"]
     lines += bench_panorama(args.dem, args.width, args.poses)
     lines += ["", f"Skyline databases, {args.grid} x {args.grid} positions, 360 azimuths, 0.1 deg/px "
-              "(|difference| median / p99, degrees; bf = brute-force reference, 0.1-cell steps)", "",
+              "(|difference| median / p99, degrees; bf = brute-force reference, 0.01-cell steps)", "",
               "| DEM | positions | Blender pos/s | ray-marcher pos/s | time ratio | Blender vs ray-marcher "
               "| Blender vs bf | ray-marcher vs bf |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     lines += bench_renderers([s for s in args.dems.split(",") if s], args.grid, 0.5)
