@@ -21,6 +21,7 @@ import shutil
 import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -78,7 +79,7 @@ def _resolve_renderer(renderer: str):
 
 def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                 spec: RenderSpec, renderer: str = "raymarch", tile_size: int = 64,
-                body: str | float | None = None) -> RenderJob:
+                body: str | float | None = None, what: str = "the grid") -> RenderJob:
     """Validate a render request and describe it; nothing is written.
 
     ``center_xy`` is in metres in the DEM's metric working CRS; ``spec.body_radius_m`` is replaced
@@ -97,7 +98,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
     gx0, gy0, gx1, gy1 = grid.bounds()
     if not (xmin <= gx0 and gx1 <= xmax and ymin <= gy0 and gy1 <= ymax):
         raise InvalidInputError(
-            f"the grid ({gx0:.1f}..{gx1:.1f}, {gy0:.1f}..{gy1:.1f} m) is not inside the DEM "
+            f"{what} ({gx0:.1f}..{gx1:.1f}, {gy0:.1f}..{gy1:.1f} m) is not inside the DEM "
             f"({xmin:.1f}..{xmax:.1f}, {ymin:.1f}..{ymax:.1f} m, metric CRS): choose a centre and size inside "
             "the DEM (coordinates are in the DEM's own CRS unless --crs is given)")
     meta = SkyDBMeta(
@@ -111,6 +112,17 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
                "max_distance_m": spec.max_distance_m},
     )
     return RenderJob(Path(dem_path), grid, spec, meta, the_body, renderer)
+
+
+#: Coarsest azimuth resolution the terrain levels are planned for (degrees).  The levels' cells
+#: subtend at most this angle where they start; a database with fewer azimuths still wants the
+#: elevation accuracy of 1 degree cells (the far-field error scales with the cell's angle).
+MAX_TERRAIN_AZIMUTH_STEP_DEG = 1.0
+
+
+def terrain_azimuth_step_deg(n_azimuth: int) -> float:
+    """Azimuth step (degrees) to plan the multi-resolution levels for ``n_azimuth`` samples."""
+    return min(MAX_TERRAIN_AZIMUTH_STEP_DEG, 360.0 / n_azimuth)
 
 
 def load_terrain(job: RenderJob, *, terrain_dir=None) -> MultiResTerrain:
@@ -127,7 +139,7 @@ def load_terrain(job: RenderJob, *, terrain_dir=None) -> MultiResTerrain:
         half = max(job.grid.nx, job.grid.ny) * abs(job.grid.geotransform[1]) / 2.0
         cx, cy = job.meta.extra["center_xy_m"]
         terrain = mr.build_multires(str(job.dem_path), (cx, cy), grid_half_m=half,
-                                    azimuth_step_deg=360.0 / job.spec.n_azimuth, out_dir=tdir,
+                                    azimuth_step_deg=terrain_azimuth_step_deg(job.spec.n_azimuth), out_dir=tdir,
                                     body=job.body,
                                     max_radius_m=job.spec.max_distance_m)
     gx0, gy0, gx1, gy1 = job.grid.bounds()
@@ -163,7 +175,8 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
 
 def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                     spec: RenderSpec, out, renderer: str = "raymarch", tile_size: int = 64,
-                    terrain_dir=None, progress: bool = True, body: str | float | None = None) -> SkyDB:
+                    terrain_dir=None, progress: bool = True, body: str | float | None = None,
+                    on_tile: Callable[[int, int], None] | None = None) -> SkyDB:
     """Render (or resume) the skyline database of a square grid centred on ``center_xy``.
 
     Parameters
@@ -174,6 +187,8 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
     out : the Zarr store; an existing store of the same render is resumed, finished tiles kept
     terrain_dir : where the multi-resolution terrain is (or will be) prepared
     progress : show a tqdm progress bar (positions, with ETA)
+    on_tile : called as ``on_tile(tiles_done, tiles_total)`` once the store is open and after every
+        tile written (progress reporting; an exception raised there stops the render like Ctrl-C)
 
     A brand-new store that fails before its first tile is written is removed; an interrupted
     render (Ctrl-C) keeps every finished tile and resumes when run again.
@@ -202,10 +217,16 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
 
         with tqdm(total=total, initial=done_pos, unit="pos", desc="skyline DB", disable=not progress,
                   dynamic_ncols=True, file=sys.stderr) as bar:
+            n_done = len(writer.tiles) - len(pending)
+            if on_tile is not None:
+                on_tile(n_done, len(writer.tiles))
             for tile in pending:
                 render_and_write_tile(out, terrain, tile, job.spec, renderer, writer=writer)
                 written += 1
+                n_done += 1
                 bar.update(tile.nrows * tile.ncols)
+                if on_tile is not None:
+                    on_tile(n_done, len(writer.tiles))
         return writer.finalize()
     except BaseException:
         if new_store and written == 0:
@@ -225,7 +246,8 @@ def horizon_from_dem(dem_path, *, x: float, y: float, spec: RenderSpec, body: st
     """
     from render_service.renderers.raymarch import horizon_at  # noqa: PLC0415
 
-    job = prepare_job(dem_path, center_xy=(x, y), size_m=0.0, step_m=1.0, spec=spec, body=body)
+    job = prepare_job(dem_path, center_xy=(x, y), size_m=0.0, step_m=1.0, spec=spec, body=body,
+                      what="the position")
     terrain = load_terrain(job, terrain_dir=terrain_dir)
     az, el, dist = horizon_at(terrain, x, y, job.spec)
     return az, el, dist, job.grid.crs_wkt, job.spec
