@@ -39,7 +39,8 @@ def _parse_xy(value: str) -> tuple[float, float]:
               help="Azimuth arc covered, degrees (360 = full panorama, else centred on the heading).")
 @click.option("--tilt", "tilt_deg", type=float, default=0.0, show_default=True, help="Tilt of every frame, degrees.")
 @click.option("--preset", type=click.Choice(["binary", "clean", "realistic", "distorted"]), default="realistic",
-              show_default=True, help="Look and degradations (the report's noise levels: binary, realistic, distorted).")
+              show_default=True,
+              help="Look and degradations (the report's noise levels: binary, realistic, distorted).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures, render and noise.")
 @click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples per pixel.")
 @click.option("--radius", "radius_m", type=float, default=None,

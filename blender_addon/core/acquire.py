@@ -82,7 +82,7 @@ def frame_seed_sequence(seed: int, index: int) -> np.random.SeedSequence:
 
 def load_terrain(dem_path: str | os.PathLike, site_xy: tuple[float, float], *, grid_half_m: float,
                  max_radius_m: float | None = None, body: str | float | None = None):
-    """Multi-resolution terrain around ``site_xy`` (metres) via :func:`blender_addon.terrain.multires.build_multires`."""
+    """Multi-resolution terrain around ``site_xy`` (metres): :func:`~blender_addon.terrain.multires.build_multires`."""
     from blender_addon.terrain.multires import build_multires
 
     return build_multires(dem_path, site_xy, grid_half_m=grid_half_m, max_radius_m=max_radius_m, body=body)

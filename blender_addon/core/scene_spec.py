@@ -254,7 +254,8 @@ def _degradations(tables: dict, source: str) -> dict[str, Degradation]:
         if name in out:
             return out[name]
         if name in stack:
-            raise InvalidInputError(f"{source}: degradations form a cycle through 'base': {' -> '.join(stack + (name,))}")
+            chain = " -> ".join(stack + (name,))
+            raise InvalidInputError(f"{source}: degradations form a cycle through 'base': {chain}")
         if name not in pending:
             if name in DEGRADATION_PRESETS:
                 return DEGRADATION_PRESETS[name]

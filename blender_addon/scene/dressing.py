@@ -8,7 +8,7 @@ Call :func:`dress_scene` after :func:`blender_addon.scene.build_terrain`.  It re
 * scatters rocks and pebbles around the site (:mod:`blender_addon.core.rocks`, one mesh);
 * makes a Mars sky world: butterscotch, brighter at the horizon, with an aureole around the
   sun whose width and strength grow with the dust optical depth (a clear sky is a bright
-  blue-white gradient, about twice the sunlit regolith, for a high-contrast reference);
+  blue-white gradient, 2-3 times the sunlit regolith, for a high-contrast reference);
 * fades every surface towards the horizon sky colour with distance, ``exp(-tau d / H)``
   (aerial perspective by dust), in the materials (cheap; no volume rendering);
 * lights the scene with a sun lamp of angular diameter 0.35 deg dimmed by ``exp(-tau m)``
@@ -90,9 +90,9 @@ def sky_radiances(deg: Degradation) -> tuple[np.ndarray, np.ndarray, float]:
     e0 = SUN_IRRADIANCE * deg.sun.strength
     lift = max(math.sin(math.radians(sun_el)) + 0.08, 0.02)
     if deg.sky.clear or deg.sky.dust_tau <= 0:
-        # a bright, dust-free reference sky: about twice the sunlit regolith, bluish white
-        horizon = np.array([0.80, 0.86, 0.95]) * 0.14 * e0 * lift
-        zenith = np.array([0.55, 0.65, 0.85]) * 0.10 * e0 * lift
+        # a bright, dust-free reference sky: 2-3 times the sunlit regolith, bluish white
+        horizon = np.array([0.80, 0.86, 0.95]) * 0.25 * e0 * lift
+        zenith = np.array([0.55, 0.65, 0.85]) * 0.16 * e0 * lift
         return horizon, zenith, 0.5
     tau = deg.sky.dust_tau
     scattered = 1.0 - math.exp(-tau * airmass(sun_el))
