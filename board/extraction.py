@@ -131,8 +131,10 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
     if not seen.any():
         return _failed("nothing seen: no frame covers the panorama (check the frames and the pan/tilt angles)", pano)
     vals = grey[seen]
+    del grey                                     # the detector makes its own; keep the peak memory down
     frac_black = float(np.mean(vals <= opt.black_level))
     frac_sat = float(np.mean(vals >= opt.saturation_level))
+    del vals
     diag = {"black_fraction": frac_black, "saturated_fraction": frac_sat}
     if geom.kind != "binary":
         if frac_black >= opt.bad_pixel_fraction:
@@ -147,7 +149,7 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
     sep = det.diagnostics.get("separation", 0.0)
     seen_cols = seen.any(axis=0)
     if sep < opt.min_separation or det.diagnostics.get("reason") == "one class only":
-        kind = _uniform_kind(grey, seen)
+        kind = _uniform_kind(to_grey01(pano.image)[0], seen)
         return _failed(f"{kind}: the picture has no sky/ground contrast (separation {sep:.2f} < "
                        f"{opt.min_separation})", pano, det, diag)
     top = det.diagnostics["line_at_top_fraction"]

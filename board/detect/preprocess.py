@@ -29,7 +29,9 @@ def to_grey01(image: np.ndarray) -> tuple[np.ndarray, float]:
         return img.astype(np.float32), 1.0
     else:
         full = 1.0
-    return img.astype(np.float32) / np.float32(full), full
+    out = img.astype(np.float32)
+    out *= np.float32(1.0 / full)
+    return out, full
 
 
 def seen_or_all(seen: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:

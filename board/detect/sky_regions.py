@@ -85,14 +85,23 @@ def _texture(grey: np.ndarray, win: int) -> np.ndarray:
     """
     import cv2
 
-    f = grey.astype(np.float32)
+    f = grey.astype(np.float32, copy=False)
+    sq = f * f
     out = None
     for anchor_y in (win - 1, 0):
         m = cv2.boxFilter(f, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
-        m2 = cv2.boxFilter(f * f, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
-        v = np.maximum(m2 - m * m, 0.0)
-        out = v if out is None else np.minimum(out, v)
-    return np.sqrt(out)
+        m2 = cv2.boxFilter(sq, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
+        np.multiply(m, m, out=m)
+        np.subtract(m2, m, out=m2)
+        del m
+        if out is None:
+            out = m2
+        else:
+            np.minimum(out, m2, out=out)
+            del m2
+    del sq
+    np.maximum(out, 0.0, out=out)
+    return np.sqrt(out, out=out)
 
 
 def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
@@ -110,6 +119,7 @@ def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, flo
                ) -> tuple[np.ndarray, list[tuple[float, float, float, float]]]:
     """Log-likelihood ratio sky vs ground, naive Bayes with one Gaussian per class and feature."""
     llr = np.zeros(feats[0].shape, dtype=np.float32)
+    tmp = np.empty_like(llr)
     stats = []
     for f, floor in zip(feats, floors):
         ms, ss = _fit(f[sky], floor)
@@ -117,7 +127,14 @@ def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, flo
         stats.append((ms, ss, mg, sg))
         if not (np.isfinite(ms) and np.isfinite(mg)):
             continue
-        llr += (-0.5 * ((f - ms) / ss) ** 2 - np.log(ss) + 0.5 * ((f - mg) / sg) ** 2 + np.log(sg)).astype(np.float32)
+        # llr += -0.5 ((f - ms) / ss)^2 + 0.5 ((f - mg) / sg)^2 + log(sg / ss), in place (float32)
+        for mu, sd, sign in ((ms, ss, -0.5), (mg, sg, 0.5)):
+            np.subtract(f, np.float32(mu), out=tmp)
+            tmp *= np.float32(1.0 / sd)
+            np.multiply(tmp, tmp, out=tmp)
+            tmp *= np.float32(sign)
+            llr += tmp
+        llr += np.float32(np.log(sg / ss))
     return llr, stats
 
 
@@ -146,8 +163,9 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     else:
         blur = grey
-    tex = np.log(_texture(grey, P.texture_window_px) + 1e-3)
-    seen_f = seen.astype(np.float32)
+    tex = _texture(grey, P.texture_window_px)
+    tex += 1e-3
+    np.log(tex, out=tex)
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
 
     # first split: Otsu on the seen pixels; the sky class is the one filling the top of the seen area
@@ -156,22 +174,31 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         return _empty(W, diag | {"reason": "nothing seen"})
     thr, _ = cv2.threshold(vals8.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     bright = blur > (thr / 255.0)
-    seen_rank = np.cumsum(seen, axis=0)
-    n_seen_col = seen_rank[-1]
+    seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
+    n_seen_col = seen_rank[-1].copy()
     top = seen & (seen_rank <= np.maximum(2, 0.1 * n_seen_col)[None, :])
     sky_is_bright = bool(bright[top].mean() >= 0.5) if top.any() else True
     sky0 = seen & (bright == sky_is_bright)
     ground0 = seen & ~sky0
+    del bright, seen_rank, top
     diag["sky_is_bright_initial"] = sky_is_bright
 
+    # vertical step between row r-1 and r, stored at r (0 where either pixel is unseen)
+    diff = np.zeros((H, W), dtype=np.float32)
+    np.subtract(blur[1:], blur[:-1], out=diff[1:])
+    diff[1:] *= seen[1:] & seen[:-1]
     feats = [blur, tex]
     floors = [0.01, 0.05]
     line = None
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
-        llr, stats = _class_llr(feats, sky_cls, ground_cls, floors)
-        p = 1.0 / (1.0 + np.exp(-np.clip(llr, -20, 20)))
-        q = np.where(seen, p - 0.5, 0.0).astype(np.float32)
+        p, stats = _class_llr(feats, sky_cls, ground_cls, floors)
+        # sky probability, in place: 1 / (1 + exp(-llr))
+        np.clip(p, -20.0, 20.0, out=p)
+        np.negative(p, out=p)
+        np.exp(p, out=p)
+        p += 1.0
+        np.reciprocal(p, out=p)
         mu_s, mu_g = stats[0][0], stats[0][2]
         if not (np.isfinite(mu_s) and np.isfinite(mu_g)):
             diag.update(reason="one class only", intensity_sky=mu_s, intensity_ground=mu_g)
@@ -180,15 +207,20 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         contrast = abs(mu_g - mu_s)
         # region cost of a boundary just above row b: sky-like pixels below + ground-like above
         qcum = np.zeros((H + 1, W), dtype=np.float32)
-        np.cumsum(q, axis=0, out=qcum[1:])
-        region = (qcum[-1][None, :] - 2.0 * qcum[:-1])       # (H, W), boundary above row b
-        region -= region.min(axis=0, keepdims=True)
-        region = np.minimum(region / P.region_scale_px, P.region_cap)
-        step = np.zeros((H, W), dtype=np.float32)
-        step[1:] = polarity * (blur[1:] - blur[:-1])
-        step[1:] *= seen[1:] & seen[:-1]
-        edge = np.clip(step / max(0.5 * contrast, 1e-3), 0.0, 1.0)
-        node = region.astype(np.float32) + P.edge_weight * (1.0 - edge)
+        np.cumsum(np.where(seen, p - np.float32(0.5), np.float32(0.0)), axis=0, out=qcum[1:])
+        node = qcum[:-1] * np.float32(-2.0)                # (H, W), boundary above row b
+        node += qcum[-1][None, :]
+        del qcum
+        node -= node.min(axis=0, keepdims=True)
+        node *= np.float32(1.0 / P.region_scale_px)
+        np.minimum(node, np.float32(P.region_cap), out=node)
+        # + edge term: 1 - (sky -> ground step, scaled to the scene contrast)
+        step = diff if polarity > 0 else -diff
+        edge = np.clip(step * np.float32(1.0 / max(0.5 * contrast, 1e-3)), 0.0, 1.0)
+        edge *= np.float32(-P.edge_weight)
+        edge += np.float32(P.edge_weight)
+        node += edge
+        del edge
         last = it + 1 >= max(1, P.iterations)
         if last or min(H, W) < 64:
             line = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap,
