@@ -89,6 +89,7 @@ def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset: str, *,
     rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x9A40]))
     lin = degrade.add_sensor_noise(lin, rng, full_well_e=deg.sensor.full_well_e, read_noise_e=deg.sensor.read_noise_e)
     img = degrade.quantise(degrade.srgb_encode(lin), deg.sensor.bit_depth)
+    img = np.ascontiguousarray(img[..., ::-1])          # board.acquisition writes with OpenCV: BGR order
     meta = {"preset": preset, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
             "sun_azimuth_deg": info.sun_azimuth_deg, "sun_elevation_deg": info.sun_elevation_deg,
             "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "

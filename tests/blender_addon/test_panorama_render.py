@@ -184,3 +184,27 @@ def test_perspective_frame_matches_the_camera_model(tmp_path):
     inside = (ref > 1) & (ref < 119)
     assert inside.sum() > 100
     assert np.max(np.abs(got[inside] - ref[inside])) <= 1.0
+
+
+@pytest.mark.slow
+def test_sim_panorama_dressed_preset_is_reproducible_and_stored_bgr(tmp_path):
+    """--preset uses H5b's dressing: same seed, same bytes; written in OpenCV's BGR order (Mars is red)."""
+    pytest.importorskip("blender_addon.scene.dressing")
+    from click.testing import CliRunner
+
+    from board.acquisition import load_panorama
+    from skyloc.cli import main
+
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"pano{k}"
+        args = ["sim", "panorama", "--dem", "procedural:mars:3:2000:10", "--at", "50,-30", "--heading", "45",
+                "--width", "64", "--preset", "realistic", "--samples", "2", "--seed", "5", "--out", str(out)]
+        res = CliRunner().invoke(main, args, env={"XDG_CACHE_HOME": str(tmp_path / "cache")})
+        assert res.exit_code == 0, res.output
+        outs.append(out)
+    assert (outs[0] / "panorama.png").read_bytes() == (outs[1] / "panorama.png").read_bytes()
+    pano = load_panorama(outs[0])
+    assert pano.geometry.kind == "intensity" and pano.meta["preset"] == "realistic"
+    bgr = pano.image.reshape(-1, 3).astype(float).mean(axis=0)
+    assert bgr[2] > bgr[0]                                      # red above blue, in BGR storage
