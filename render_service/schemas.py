@@ -95,7 +95,10 @@ class JobListOut(BaseModel):
 
 
 class HealthOut(BaseModel):
-    status: Literal["ok"]
+    """Liveness: ``degraded`` (with ``detail``) when the Dask cluster could not be started or reached."""
+
+    status: Literal["ok", "degraded"]
     version: str
     workers: int | None
     scheduler: str | None
+    detail: str | None = None

@@ -167,16 +167,18 @@ def render_tile_task(*, job_id: str, store_path: str, db_path: str, terrain_dir:
 
 
 def dataset_task(scene_toml: str, out_dir: str) -> str:
-    """Generate a simulator test set from a scene file into ``out_dir`` (atomically)."""
+    """Generate a simulator test set from a scene file into ``out_dir``.
+
+    Rendered into ``<out_dir>.partial`` (which the generator resumes after a crash), renamed when complete.
+    """
     from blender_addon.core.dataset import generate_dataset  # noqa: PLC0415
 
     out = Path(out_dir)
-    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    generate_dataset(scene_toml, tmp)
+    partial = out.with_name(out.name + ".partial")
+    generate_dataset(scene_toml, partial)
     if out.exists():
         shutil.rmtree(out)
-    os.rename(tmp, out)
+    os.rename(partial, out)
     return str(out)
 
 
@@ -362,7 +364,8 @@ class JobRunner:
         scene = self.settings.scenes_dir / f"{job.spec['scene']}.toml"
         out = jdir / "dataset"
         if not (out.is_dir() and any(out.iterdir())):
-            fut = self.client.submit(dataset_task, str(scene), str(out), pure=False)
+            fut = self.client.submit(dataset_task, str(scene), str(out), pure=False,
+                                     retries=self.settings.max_tile_retries)
             self._wait_one(fut, job.id)
         sha, nbytes = write_result_zip(out, jdir / RESULT_NAME, arcroot="dataset")
         self.store.mark_tile_done(job_id=job.id, tile_key="dataset")

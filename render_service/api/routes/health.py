@@ -16,4 +16,6 @@ async def healthz(runner=Depends(get_runner)) -> HealthOut:
     scheduler = None
     if runner is not None and runner.client is not None:
         scheduler = "local" if runner.cluster is not None else "remote"
-    return HealthOut(status="ok", version=__version__, workers=workers, scheduler=scheduler)
+    error = runner.error if runner is not None else None
+    return HealthOut(status="degraded" if error else "ok", version=__version__, workers=workers,
+                     scheduler=scheduler, detail=error)
