@@ -81,7 +81,7 @@ def _exit_distance(u, v, du, dv, lo_u, hi_u, lo_v, hi_v):
 @njit(**_NOGIL)
 def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
               blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
-              c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth):
+              c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth, hint_d):
     """March one ray; return (best tangent, its distance in metres), (-inf, nan) if no sample."""
     nlev = offsets.shape[0]
     best = -np.inf
@@ -113,6 +113,27 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
                 best = num / d
                 best_d = d
             d *= seed_growth
+        # and around the distance where the previous azimuth's horizon was (usually the same ridge)
+        if hint_d > d_lattice:
+            for f in (0.97, 1.0, 1.03):
+                d = hint_d * f
+                if d > max_dist:
+                    break
+                lev = 0
+                while lev < nlev:
+                    inv = 1.0 / cell[lev]
+                    u = (px + d * sx - x0[lev]) * inv - 0.5
+                    v = (y0[lev] - py - d * sy) * inv - 0.5
+                    if u >= 0.0 and v >= 0.0 and u <= cols[lev] - 1 and v <= rows[lev] - 1:
+                        break
+                    lev += 1
+                if lev >= nlev:
+                    break
+                z = _bilinear(heights, offsets[lev], cols[lev], u, v)
+                num = z - z_eye - c_per_m * d * d
+                if num > best * d:
+                    best = num / d
+                    best_d = d
     d = d_start
     lev = 0
     while d <= max_dist:
@@ -213,11 +234,13 @@ def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols
         if not np.isfinite(zg):
             continue
         z_eye = zg + cam_h
+        hint = np.nan
         for a in range(naz):
             best, bd = march_ray(px[p], py[p], z_eye, sin_az[a], cos_az[a], heights, offsets, rows, cols,
                                  x0, y0, cell, suffix_max, blk1, blk1_off, blk1_cols, blk1_size,
                                  blk2, blk2_off, blk2_cols, blk2_size, c_per_m, d_start, min_step,
-                                 step_per_m, max_dist, seed_growth)
+                                 step_per_m, max_dist, seed_growth, hint)
+            hint = bd
             if best > -np.inf:
                 el[p, a] = math.degrees(math.atan(best))
                 dist[p, a] = bd
