@@ -1,6 +1,8 @@
 """SKYLOC_OT_acquire: a simulated NavCam acquisition (pan-tilt frames + manifest) at the rover pose."""
 from __future__ import annotations
 
+import uuid
+
 import bpy  # noqa: TID251 (extension layer)
 
 from .. import bridge
@@ -20,6 +22,9 @@ def _simulator(Simulator, s):
     sim.dem_spec, sim.dem_path = s.dem.strip(), bridge.SESSION.dem_path
     sim.site_xy, sim.terrain, sim.grid_half_m = tuple(terrain.site_xy), terrain, float(s.grid_half_m)
     sim._scene = bscene
+    # mark the scene as this simulator's (Simulator._ensure_scene would otherwise rebuild it)
+    sim._token = uuid.uuid4().hex
+    bscene.state.get_scene()["skyloc_simulator"] = sim._token
     return sim
 
 
