@@ -168,7 +168,7 @@ def _coarse_init(db: SkyDB, q, row: int, col: int, allowed, level: tuple[float, 
     return {"row": float(row), "col": float(col), "heading": h, "pitch": float(pitch), "roll": float(roll)}
 
 
-def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt_prior, region: Region,
+def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt_prior, noise_deg: float,
                  max_moves: int = 6) -> tuple[Refined, LocalDB]:
     """Refine from node (r, c) within +-1.5 nodes; while the optimum sits on that box's edge, move the box.
 
@@ -181,8 +181,7 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
         seen_nodes.add((r, c))
         local = _local_db(db, r, c)
         bounds = {"row": (max(r - 1.5, 0), min(r + 1.5, g.ny - 1)), "col": (max(c - 1.5, 0), min(c + 1.5, g.nx - 1))}
-        ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
-                     bounds=bounds)
+        ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
         v = ref.values
         at_edge = any(min(v[k] - lo, hi - v[k]) < 1e-6 for k, (lo, hi) in bounds.items())
         nr, nc = int(round(v["row"])), int(round(v["col"]))
@@ -190,6 +189,35 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
             break
         r, c, init = nr, nc, dict(v)
     return ref, local
+
+
+def _parallax_weights(db: SkyDB, local: LocalDB, fi: float, fj: float, init: dict, theta, el, noise: float,
+                      position_sigma_m: float) -> np.ndarray | None:
+    """Heading mode: down-weight samples whose horizon is near (parallax from the position error).
+
+    A horizon point at distance d seen from a position wrong by ``position_sigma_m`` moves by
+    about ``position_sigma_m / d`` radians in azimuth and elevation; its elevation error is then
+    ``~ (180/pi) (position_sigma_m / d) sqrt((1 + slope^2) / 2)`` degrees (slope: d el / d az of the
+    skyline).  Weights are ``noise^2 / (noise^2 + that^2)``.  None when the database has no distances.
+    """
+    if not db.meta.has_distance or position_sigma_m <= 0:
+        return None
+    nr, nc, _ = local.el.shape
+    d = db.read_distance(Tile(-1, -1, local.row0, local.col0, nr, nc))
+    d = np.where(np.isfinite(d), d, 1e6).astype(np.float64)
+    dist = LocalDB(d, local.row0, local.col0, local.az_start_deg)
+    sky = local.skyline_at(fi, fj)
+    az, _ = enu_az_el(theta, el, init["heading"], init["pitch"], init["roll"])
+    n = sky.size
+    slope = (np.roll(sky, -1) - np.roll(sky, 1)) / (2 * 360.0 / n)
+    dj = np.maximum(dist.sample(dist.skyline_at(fi, fj), az), 1.0)
+    par = np.degrees(position_sigma_m / dj) * np.sqrt((1.0 + local.sample(slope, az) ** 2) / 2.0)
+    return noise ** 2 / (noise ** 2 + par ** 2)
+
+
+def _noise_from_score(score: float, q) -> float:
+    """Per-sample noise (degrees) implied by a coarse best score: weighs an IMU prior against the skyline."""
+    return max(math.sqrt(max(score, 0.0) / max(q.n_seen - q.n_params, 1)), 0.02)
 
 
 def _allowed_shifts(n: int, db_start: float, query_start: float, prior: float, window: float) -> np.ndarray:
@@ -201,7 +229,8 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
            prior_xy: tuple[float, float] | None = None, radius_m: float | None = None,
            heading_prior_deg: float | None = None, heading_window_deg: float = 10.0,
            tilt_prior: tuple[float, float, float] | None = None, model: str = "tilt", prune: bool = True,
-           n_candidates: int = 5, thresholds: Thresholds | None = None, progress=None) -> Fix:
+           n_candidates: int = 5, thresholds: Thresholds | None = None, position_sigma_m: float = 10.0,
+           progress=None) -> Fix:
     """Estimate position, heading and tilt from a query skyline.
 
     Parameters
@@ -216,6 +245,8 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
     tilt_prior : (pitch, roll, sigma) degrees from an IMU
     model : coarse score, "tilt" (invariant to small pitch/roll) or "offset" (the report's metric)
     prune : exact Parseval pruning for full panoramas (the result is identical either way)
+    position_sigma_m : heading mode: expected error of the given position; near horizon points,
+        whose azimuth that error shifts, are down-weighted (needs horizon distances in the database)
     """
     t0 = time.perf_counter()
     if not isinstance(db, SkyDB):
@@ -270,21 +301,26 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
             if q.n_params == 3:
                 dp, dr = harmonic_to_tilt_matrix() @ (q.minv @ blk.b[:, 0, a])[1:]
                 pitch, roll = pitch + dp, roll + dr
+            h0 = float(heading_deg(a, n=n, db_start_deg=db.meta.azimuth_start_deg, query_start_deg=q0))
+            # unwrapped next to the prior so that the heading bounds below are contiguous
             init = {"row": fi, "col": fj, "pitch": pitch, "roll": roll,
-                    "heading": float(heading_deg(a, n=n, db_start_deg=db.meta.azimuth_start_deg, query_start_deg=q0))}
+                    "heading": heading_prior_deg + float(wrap_deg180(h0 - heading_prior_deg))}
             free = ("heading", "pitch", "roll") if model == "tilt" else ("heading",)
-            return refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=NOMINAL_NOISE_DEG,
+            noise = _noise_from_score(float(sc[a]), q)
+            weights = _parallax_weights(db, local, fi, fj, init, theta, el, noise, position_sigma_m)
+            return refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise, weights=weights,
                           bounds={"heading": (heading_prior_deg - heading_window_deg - 1,
                                               heading_prior_deg + heading_window_deg + 1)}), local
         best = None
         cands = _candidates(smap, n_candidates, sep=3)
+        noise = _noise_from_score(float(np.min(smap.score)), q)
         s0 = smap.score[cands[0][0] - smap.region.row0, cands[0][1] - smap.region.col0]
         for r, c in cands:
             if smap.score[r - smap.region.row0, c - smap.region.col0] > CANDIDATE_FACTOR * s0 + 1e-12:
                 break
             init = _coarse_init(db, q, r, c, allowed, level, q0)
             ref, local = _walk_refine(db, r, c, init, theta, el, free=PARAMS if model == "tilt" else
-                                      ("row", "col", "heading"), tilt_prior=tilt_prior, region=region)
+                                      ("row", "col", "heading"), tilt_prior=tilt_prior, noise_deg=noise)
             if best is None or ref.cost < best[0].cost:
                 best = (ref, local)
         return best

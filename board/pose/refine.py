@@ -83,25 +83,35 @@ def _enu_az(vb: np.ndarray, v: dict) -> np.ndarray:
     return np.degrees(np.arctan2(u[:, 0], u[:, 1]))
 
 
-def _residual(local: LocalDB, vb: np.ndarray, v: dict) -> tuple[np.ndarray, float]:
-    """Offset-free residual (degrees) of body-frame query directions ``vb`` (n, 3) at pose ``v``."""
+def _residual(local: LocalDB, vb: np.ndarray, v: dict, sw: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Offset-free residual (degrees) of body-frame query directions ``vb`` (n, 3) at pose ``v``.
+
+    ``sw`` : optional square roots of per-sample weights (the offset is then the weighted mean).
+    """
     u = vb @ rotation_enu_from_camera(v["heading"], v["pitch"], v["roll"]).T
     az = np.degrees(np.arctan2(u[:, 0], u[:, 1]))
     e = np.degrees(np.arcsin(np.clip(u[:, 2], -1.0, 1.0)))
     r = e - local.sample(local.skyline_at(v["row"], v["col"]), az)
-    mu = float(r.mean())
-    return r - mu, mu
+    if sw is None:
+        mu = float(r.mean())
+        return r - mu, mu
+    w = sw * sw
+    mu = float(w @ r / w.sum())
+    return (r - mu) * sw, mu
 
 
 def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict, *,
            free: tuple[str, ...] = PARAMS, tilt_prior: tuple[float, float, float] | None = None,
-           noise_deg: float = 0.1, bounds: dict | None = None, max_iter: int = 40) -> Refined:
+           noise_deg: float = 0.1, bounds: dict | None = None, max_iter: int = 40,
+           weights: np.ndarray | None = None) -> Refined:
     """Levenberg-Marquardt refinement of ``init`` (dict of PARAMS) on the seen query samples.
 
     theta_deg, el_deg : seen query samples (relative azimuth, elevation), degrees
     tilt_prior : (pitch, roll, sigma) degrees from an IMU, weighted against ``noise_deg``
     bounds : {name: (lo, hi)} box constraints (e.g. the fractional grid window)
+    weights : optional (n_seen,) relative weights of the samples (1 = nominal noise)
     """
+    sw = None if weights is None else np.sqrt(np.asarray(weights, float))
     v = {k: float(init[k]) for k in PARAMS}
     bounds = bounds or {}
     free = tuple(free)
@@ -122,7 +132,7 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
     vb = body_from_rel_az_el(theta_deg, el_deg)
 
     def full_res(vv):
-        r, _ = _residual(local, vb, vv)
+        r, _ = _residual(local, vb, vv, sw)
         return np.concatenate([r, prior_res(vv)])
 
     def jacobian(vv, r0):
@@ -161,7 +171,7 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
             lam *= 4
         if not improved or dc < 1e-10 * max(cost, 1e-12):
             break
-    res, mu = _residual(local, vb, v)
+    res, mu = _residual(local, vb, v, sw)
     J = jacobian(v, r)
     n = res.size
     pinfo = J[n:].T @ J[n:] if J.shape[0] > n else np.zeros((len(free), len(free)))

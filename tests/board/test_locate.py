@@ -1,0 +1,179 @@
+"""locate() on ray-marched databases with queries rendered off the grid, tilted, noisy and partial.
+
+Requirements checked (DESIGN.md): lost in space to 5 m, end of traverse to 1 m, heading to 1 deg,
+robust to 10 degrees of pitch or roll.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from board.conventions import wrap_deg180
+from board.errors import FormatError, InvalidInputError
+from board.locate import locate
+from board.skyline import Skyline
+
+
+def _err(fix, x, y, h):
+    return math.hypot(fix.x - x, fix.y - y), abs(float(wrap_deg180(fix.heading_deg - h)))
+
+
+@pytest.mark.parametrize("pitch,roll", [(0, 0), (5, 0), (0, -5), (10, 0), (0, 10), (-7, 7)])
+def test_lost_in_space_full_panorama_with_tilt(raymarch_world, pitch, roll):
+    w = raymarch_world
+    rng = np.random.default_rng(100 + 7 * pitch + roll)
+    x, y = w.random_xy(rng)
+    h = rng.uniform(0, 360)
+    fix = locate(w.db, w.query(x, y, heading=h, pitch=pitch, roll=roll, noise=0.05, rng=rng))
+    d, dh = _err(fix, x, y, h)
+    assert fix.status == "ok", fix.reason
+    assert d <= 5.0 and dh <= 1.0
+    assert abs(fix.pitch_deg - pitch) <= 1.5 and abs(fix.roll_deg - roll) <= 1.5
+
+
+@pytest.mark.parametrize("arc", [242, 120])
+def test_lost_in_space_partial_panorama(raymarch_world, arc):
+    w = raymarch_world
+    rng = np.random.default_rng(arc)
+    errs = []
+    for _ in range(4):
+        x, y = w.random_xy(rng)
+        h = rng.uniform(0, 360)
+        sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05,
+                      arc=arc, arc_start=rng.uniform(0, 360), rng=rng)
+        fix = locate(w.db, sky)
+        errs.append(_err(fix, x, y, h))
+    d, dh = np.array(errs).T
+    assert np.median(d) <= 5.0 and np.median(dh) <= 1.0
+
+
+def test_single_frame_65_degrees_is_located_or_flagged(raymarch_world):
+    """A 65-degree frame carries little information: a fix is right or it is not `ok`."""
+    w = raymarch_world
+    rng = np.random.default_rng(65)
+    n_ok = 0
+    for _ in range(6):
+        x, y = w.random_xy(rng)
+        h = rng.uniform(0, 360)
+        fix = locate(w.db, w.query(x, y, heading=h, noise=0.05, arc=65, arc_start=rng.uniform(0, 360), rng=rng))
+        d, _ = _err(fix, x, y, h)
+        if fix.status == "ok":
+            n_ok += 1
+            assert d <= 5 * w.step
+    assert n_ok >= 2
+
+
+def test_window_mode_beats_half_the_grid_step(raymarch_world):
+    """End of a traverse: prior within 15 m, 20 m radius; sub-grid refinement gives about 1 m."""
+    w = raymarch_world
+    rng = np.random.default_rng(7)
+    errs = []
+    for _ in range(6):
+        x, y = w.random_xy(rng, margin_steps=5)
+        h = rng.uniform(0, 360)
+        a = rng.uniform(0, 2 * np.pi)
+        prior = (x + 15 * np.cos(a), y + 15 * np.sin(a))
+        fix = locate(w.db, w.query(x, y, heading=h, noise=0.03, rng=rng), mode="window", prior_xy=prior,
+                     radius_m=20.0)
+        errs.append(_err(fix, x, y, h)[0])
+    assert np.median(errs) <= 1.0 < w.step / 2  # grid-node answers would be 1.9 m off on average
+    assert max(errs) <= 2 * w.step
+
+
+@pytest.mark.parametrize("offset_m", [0.0, 2.5, 5.0])
+def test_heading_mode_near_the_true_position(raymarch_world, offset_m):
+    """Rough procedural terrain with near horizons: heading within 1 degree from a position a few metres off."""
+    w = raymarch_world
+    rng = np.random.default_rng(int(offset_m * 2) + 3)
+    for _ in range(3):
+        x, y = w.random_xy(rng, margin_steps=5)
+        h = rng.uniform(0, 360)
+        a = rng.uniform(0, 2 * np.pi)
+        prior = (x + offset_m * np.cos(a), y + offset_m * np.sin(a))
+        sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
+        fix = locate(w.db, sky, mode="heading", prior_xy=prior, heading_prior_deg=h + rng.uniform(-8, 8))
+        assert _err(fix, x, y, h)[1] <= 1.0
+
+
+def test_heading_sweep_real_dem(real_world):
+    """Table 8 of the report: heading from a position wrong by 0-20 m, real DEM, tilted mast.
+
+    The heading error of a wrong position is about the parallax of the horizon, position error /
+    horizon distance; near horizon points are down-weighted using the database's distances.
+    """
+    w = real_world
+    rng = np.random.default_rng(8)
+    errs = []
+    for offset_m in (0.0, 5.0, 10.0, 15.0, 20.0):
+        for _ in range(4):
+            x, y = w.random_xy(rng, margin_steps=3)
+            h = rng.uniform(0, 360)
+            a = rng.uniform(0, 2 * np.pi)
+            prior = (x + offset_m * np.cos(a), y + offset_m * np.sin(a))
+            sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
+            fix = locate(w.db, sky, mode="heading", prior_xy=prior, heading_prior_deg=h + rng.uniform(-8, 8))
+            errs.append(_err(fix, x, y, h)[1])
+    errs = np.array(errs)
+    assert np.mean(errs <= 1.0) >= 0.9 and errs.max() <= 2.0
+    assert np.all(errs[:4] <= 0.2)  # at the true position
+
+
+def test_imu_tilt_prior_helps_a_tilted_single_frame(raymarch_world):
+    w = raymarch_world
+    rng = np.random.default_rng(11)
+    without, with_prior = [], []
+    for _ in range(4):
+        x, y = w.random_xy(rng)
+        h = rng.uniform(0, 360)
+        p, r = rng.uniform(-10, 10), rng.uniform(-10, 10)
+        sky = w.query(x, y, heading=h, pitch=p, roll=r, noise=0.05, arc=120, arc_start=rng.uniform(0, 360), rng=rng)
+        imu = (p + rng.normal(0, 0.2), r + rng.normal(0, 0.2), 0.3)
+        f1 = locate(w.db, sky)
+        f2 = locate(w.db, sky, tilt_prior=imu)
+        without.append(abs(f1.pitch_deg - p) + abs(f1.roll_deg - r))
+        with_prior.append(abs(f2.pitch_deg - p) + abs(f2.roll_deg - r))
+    assert np.median(with_prior) <= 0.5
+    assert np.mean(with_prior) <= np.mean(without) + 0.05
+
+
+@pytest.mark.parametrize("arc", [360, 242])
+def test_real_dem_tilted(real_world, arc):
+    w = real_world
+    rng = np.random.default_rng(arc)
+    for _ in range(2):
+        x, y = w.random_xy(rng)
+        h = rng.uniform(0, 360)
+        fix = locate(w.db, w.query(x, y, heading=h, pitch=rng.uniform(-10, 10), roll=rng.uniform(-10, 10),
+                                   noise=0.05, arc=arc, arc_start=rng.uniform(0, 360), rng=rng))
+        d, dh = _err(fix, x, y, h)
+        assert d <= w.step and dh <= 0.5
+
+
+def test_bad_inputs_are_refused_with_the_problem_named(mountain_world, tmp_path):
+    db = mountain_world.db
+    with pytest.raises(InvalidInputError, match="no seen sample"):
+        locate(db, Skyline(np.full(360, np.nan)))
+    with pytest.raises(InvalidInputError, match="every 0.5 degrees"):
+        locate(db, Skyline(np.zeros(720), azimuth_step_deg=0.5))
+    with pytest.raises(InvalidInputError, match="outside the database grid"):
+        locate(db, Skyline(np.sin(np.arange(360.0))), mode="window", prior_xy=(0.0, 0.0), radius_m=20)
+    with pytest.raises(InvalidInputError, match="prior position"):
+        locate(db, Skyline(np.sin(np.arange(360.0))), mode="window")
+    with pytest.raises(InvalidInputError, match="unknown mode"):
+        locate(db, Skyline(np.sin(np.arange(360.0))), mode="fast")
+    with pytest.raises(FormatError, match="no skyline database"):
+        locate(tmp_path / "missing.zarr", Skyline(np.sin(np.arange(360.0))))
+
+
+def test_truncated_database_is_refused(mountain_world, tmp_path):
+    import shutil
+
+    from board.skydb import SkyDB
+
+    path = tmp_path / "db.zarr"
+    shutil.copytree(mountain_world.db.path, path)
+    chunks = sorted(p for p in (path / "elevation").rglob("*") if p.is_file() and p.name != "zarr.json")
+    chunks[len(chunks) // 2].write_bytes(b"\x00garbage")
+    sky = mountain_world.query(*mountain_world.random_xy(np.random.default_rng(0)), heading=0.0)
+    with pytest.raises(FormatError, match="truncated or corrupt"):
+        locate(SkyDB.open(path), sky)

@@ -1,0 +1,93 @@
+"""The streamed search equals exhaustive scoring of the whole database; pruning never changes the argmin."""
+import numpy as np
+import pytest
+
+from board.match.fft_score import prepare_query, score_block
+from board.match.search import Region, search
+
+
+def _exhaustive(db, q):
+    all_el = db.read_all().reshape(-1, q.n).astype(np.float64)
+    s = score_block(q, all_el, want_b=False).scores
+    return s.min(axis=1).reshape(db.grid.ny, db.grid.nx), s
+
+
+@pytest.mark.parametrize("model", ["offset", "tilt"])
+@pytest.mark.parametrize("arc", [360, 120])
+def test_streamed_search_equals_exhaustive(mountain_world, model, arc):
+    w = mountain_world
+    rng = np.random.default_rng(arc)
+    x, y = w.random_xy(rng)
+    sky = w.query(x, y, heading=rng.uniform(0, 360), noise=0.05, arc=arc, arc_start=30.0, rng=rng)
+    q = prepare_query(sky.elevation_deg, model=model)
+    smap = search(w.db, q, prune=False)
+    ref, _ = _exhaustive(w.db, q)
+    np.testing.assert_allclose(smap.score, ref, rtol=1e-9, atol=1e-9)
+    assert smap.exact.all() and smap.n_pruned == 0
+
+
+@pytest.mark.parametrize("model", ["offset", "tilt"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pruning_returns_the_exhaustive_argmin(mountain_world, model, seed):
+    w = mountain_world
+    rng = np.random.default_rng(seed)
+    x, y = w.random_xy(rng)
+    pitch = rng.uniform(-3, 3) if model == "tilt" else 0.0  # the offset model is not tilt-invariant
+    sky = w.query(x, y, heading=rng.uniform(0, 360), pitch=pitch, noise=0.1, rng=rng)
+    q = prepare_query(sky.elevation_deg, model=model)
+    pruned = search(w.db, q, prune=True, prune_factor=2.0)
+    ref, full = _exhaustive(w.db, q)
+    assert pruned.n_pruned > 0  # the bound did prune: the test exercises it
+    assert pruned.argmin() == np.unravel_index(np.argmin(ref), ref.shape)
+    best = ref.min()
+    np.testing.assert_allclose(pruned.score.min(), best, rtol=1e-12)
+    # every position within the factor of the best is scored exactly; pruned ones hold a lower bound
+    ex = pruned.exact
+    np.testing.assert_allclose(pruned.score[ex], ref[ex], rtol=1e-9, atol=1e-9)
+    assert np.all(pruned.score[~ex] <= ref[~ex] * (1 + 1e-9) + 1e-9)
+    assert np.all(ex[ref <= 2.0 * best])
+    # the best heading too
+    i, j = pruned.argmin()
+    k = i * w.db.grid.nx + j
+    assert pruned.shift[i, j] == np.argmin(full[k])
+
+
+def test_region_disc_and_heading_window(mountain_world):
+    w = mountain_world
+    g = w.db.grid
+    cx, cy = g.xy(g.ny // 2, g.nx // 2)
+    reg = Region.disc(g, (cx + 2.0, cy - 1.0), 12.0)
+    rr, cc = np.mgrid[reg.row0:reg.row0 + reg.nrows, reg.col0:reg.col0 + reg.ncols]
+    x, y = g.xy(rr, cc)
+    np.testing.assert_array_equal(reg.mask, np.hypot(x - cx - 2.0, y - cy + 1.0) <= 12.0)
+    rng = np.random.default_rng(4)
+    sky = w.query(cx, cy, heading=100.0, noise=0.05, rng=rng)
+    q = prepare_query(sky.elevation_deg)
+    allowed = np.zeros(q.n, bool)
+    allowed[150:170] = True  # headings 150..169: the true 100 is excluded
+    smap = search(w.db, q, region=reg, allowed_shifts=allowed)
+    ok = np.isfinite(smap.score)
+    assert ok.sum() == reg.mask.sum()
+    assert np.all((smap.shift[ok] >= 150) & (smap.shift[ok] < 170))
+
+
+def test_search_reads_the_database_tile_by_tile(mountain_world):
+    """Bounded memory: the search never reads more than one tile of skylines at a time."""
+    w = mountain_world
+    db = w.db
+    sizes = []
+    orig = db.read_tile
+
+    def spy(tile):
+        out = orig(tile)
+        sizes.append(out.shape[0] * out.shape[1])
+        return out
+
+    db.read_tile = spy
+    try:
+        sky = w.query(*w.random_xy(np.random.default_rng(0)), heading=10.0)
+        search(db, prepare_query(sky.elevation_deg))
+    finally:
+        del db.read_tile
+    assert len(sizes) == len(db.tiles)
+    assert max(sizes) <= db.meta.tile_size ** 2
