@@ -31,8 +31,10 @@ numpy helpers here work without Blender.
 """
 from __future__ import annotations
 
+import atexit
 import logging
 import math
+import shutil
 import tempfile
 import threading
 import uuid
@@ -149,6 +151,7 @@ class _Session:
         self.token = uuid.uuid4().hex
         self.last_band: tuple[float, float] | None = None
         self.tmpdir = Path(tempfile.mkdtemp(prefix="skyloc-blender-"))
+        atexit.register(shutil.rmtree, self.tmpdir, ignore_errors=True)
 
 
 _SESSION = _Session()

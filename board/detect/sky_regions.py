@@ -6,10 +6,12 @@ the line look like sky and the region below like ground:
 
 1. Features per pixel: blurred intensity and a texture measure (local standard deviation,
    the smaller of the windows just above and just below the pixel, so that the measure does
-   not bleed across the line).  Two Gaussian classes (sky, ground) give a per-pixel sky
-   probability ``p``; the first split comes from Otsu, the sky class being the one that fills
-   the top of the picture; then the classes are re-fitted on the two sides of the detected
-   line and the line detected again.
+   not bleed across the line).  Two robust Gaussian classes (sky, ground) per azimuth sector
+   (the sunlit side of a hill can be brighter than the sky, the shaded side darker), spread
+   to every column by linear interpolation between sector centres, give a per-pixel sky
+   probability ``p``; the first split comes from Otsu per sector, the sky class being the one
+   that fills the top of the picture; then the classes are re-fitted on the two sides of the
+   detected line and the line detected again.
 2. Node cost of a boundary just above row ``r`` in column ``c``: the number of pixels it
    misclassifies in that column (sky-like pixels below, ground-like above; scaled, capped)
    plus the lack of a sky-to-ground step of the right polarity.
@@ -49,6 +51,8 @@ class DetectorParams:
     edge_weight: float = 1.0
     jump_cost_per_px: float = 0.03      # cost of a one-row jump between neighbouring columns
     iterations: int = 2                 # class re-fits on the detected line
+    n_sectors: int = 24                 # class models fitted per azimuth sector (sunlit vs shaded sides)
+    min_sector_pixels: int = 400        # fewer pixels of a class in a sector: use the global model there
     refit_margin_px: int = 4            # rows next to the line left out of the re-fit
     contrast_window_px: int = 5         # rows each side for the step contrast
     region_window_px: int = 30          # rows each side for the region consistency check
@@ -115,27 +119,74 @@ def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
     return med, max(mad, floor)
 
 
-def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float]
-               ) -> tuple[np.ndarray, list[tuple[float, float, float, float]]]:
-    """Log-likelihood ratio sky vs ground, naive Bayes with one Gaussian per class and feature."""
+def _sector_edges(W: int, n_sectors: int) -> np.ndarray:
+    return np.linspace(0, W, max(1, min(n_sectors, W // 8)) + 1).round().astype(int)
+
+
+def _per_column(values: np.ndarray, edges: np.ndarray, W: int, wrap: bool) -> np.ndarray:
+    """Spread per-sector values to every column, linearly between sector centres (circularly if ``wrap``)."""
+    centres = 0.5 * (edges[:-1] + edges[1:]) - 0.5
+    cols = np.arange(W, dtype=np.float64)
+    if values.size == 1:
+        return np.full(W, values[0])
+    if wrap:
+        xp = np.concatenate([centres[-1:] - W, centres, centres[:1] + W])
+        fp = np.concatenate([values[-1:], values, values[:1]])
+        return np.interp(cols, xp, fp)
+    return np.interp(cols, centres, values)
+
+
+def _fit_sectors(f: np.ndarray, mask: np.ndarray, edges: np.ndarray, floor: float, min_pixels: int,
+                 wrap: bool) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """Per-column (median, spread) of ``f`` over ``mask``, fitted per sector, global fit where a sector is thin."""
+    g_mu, g_sd = _fit(f[mask], floor)
+    mus, sds = [], []
+    for c0, c1 in zip(edges[:-1], edges[1:]):
+        m = mask[:, c0:c1]
+        if m.sum() < min_pixels:
+            mus.append(g_mu), sds.append(g_sd)
+            continue
+        mu, sd = _fit(f[:, c0:c1][m], floor)
+        mus.append(mu), sds.append(sd)
+    W = f.shape[1]
+    return (_per_column(np.array(mus), edges, W, wrap), _per_column(np.array(sds), edges, W, wrap), (g_mu, g_sd))
+
+
+def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float],
+               edges: np.ndarray, min_pixels: int, wrap: bool) -> tuple[np.ndarray, list]:
+    """Log-likelihood ratio sky vs ground (float32, (H, W)), naive Bayes with one Gaussian per class,
+    feature and azimuth sector.  Returns the LLR and, per feature, (mu_sky, sd_sky, mu_ground, sd_ground)
+    as per-column arrays plus the global fits."""
     llr = np.zeros(feats[0].shape, dtype=np.float32)
     tmp = np.empty_like(llr)
     stats = []
     for f, floor in zip(feats, floors):
-        ms, ss = _fit(f[sky], floor)
-        mg, sg = _fit(f[ground], floor)
-        stats.append((ms, ss, mg, sg))
-        if not (np.isfinite(ms) and np.isfinite(mg)):
+        ms, ss, gs = _fit_sectors(f, sky, edges, floor, min_pixels, wrap)
+        mg, sg, gg = _fit_sectors(f, ground, edges, floor, min_pixels, wrap)
+        stats.append((ms, ss, mg, sg, gs, gg))
+        if not (np.isfinite(gs[0]) and np.isfinite(gg[0])):
             continue
         # llr += -0.5 ((f - ms) / ss)^2 + 0.5 ((f - mg) / sg)^2 + log(sg / ss), in place (float32)
         for mu, sd, sign in ((ms, ss, -0.5), (mg, sg, 0.5)):
-            np.subtract(f, np.float32(mu), out=tmp)
-            tmp *= np.float32(1.0 / sd)
+            np.subtract(f, mu.astype(np.float32)[None, :], out=tmp)
+            tmp *= (1.0 / sd).astype(np.float32)[None, :]
             np.multiply(tmp, tmp, out=tmp)
             tmp *= np.float32(sign)
             llr += tmp
-        llr += np.float32(np.log(sg / ss))
+        llr += np.log(sg / ss).astype(np.float32)[None, :]
     return llr, stats
+
+
+def _otsu_split(blur: np.ndarray, seen: np.ndarray, top: np.ndarray) -> tuple[float, bool]:
+    """Otsu threshold (fraction of full scale) of the seen pixels and whether the sky is the bright class
+    (the class that fills the top of the seen area)."""
+    import cv2
+
+    vals8 = np.clip(blur[seen] * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    thr, _ = cv2.threshold(vals8.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    thr = float(thr) / 255.0
+    t = blur[top]
+    return thr, bool(np.mean(t > thr) >= 0.5) if t.size else True
 
 
 def _bands_from_line(line: np.ndarray, H: int, margin: int) -> tuple[np.ndarray, np.ndarray]:
@@ -168,20 +219,29 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     np.log(tex, out=tex)
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
 
-    # first split: Otsu on the seen pixels; the sky class is the one filling the top of the seen area
-    vals8 = np.clip(blur[seen] * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    if vals8.size == 0:
+    # first split, per azimuth sector: Otsu on the seen pixels; the sky class is the one filling
+    # the top of the seen area (sunlit ground can be brighter than the sky on one side only)
+    if not seen.any():
         return _empty(W, diag | {"reason": "nothing seen"})
-    thr, _ = cv2.threshold(vals8.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    bright = blur > (thr / 255.0)
+    edges = _sector_edges(W, P.n_sectors)
     seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
     n_seen_col = seen_rank[-1].copy()
     top = seen & (seen_rank <= np.maximum(2, 0.1 * n_seen_col)[None, :])
-    sky_is_bright = bool(bright[top].mean() >= 0.5) if top.any() else True
-    sky0 = seen & (bright == sky_is_bright)
+    del seen_rank
+    g_thr, g_bright = _otsu_split(blur, seen, top)
+    thr_s, bright_s = [], []
+    for c0, c1 in zip(edges[:-1], edges[1:]):
+        if seen[:, c0:c1].sum() < P.min_sector_pixels:
+            thr_s.append(g_thr), bright_s.append(g_bright)
+            continue
+        t, b_ = _otsu_split(blur[:, c0:c1], seen[:, c0:c1], top[:, c0:c1])
+        thr_s.append(t), bright_s.append(b_)
+    thr_col = np.repeat(np.array(thr_s, dtype=np.float32), np.diff(edges))
+    bright_col = np.repeat(np.array(bright_s), np.diff(edges))
+    sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
     ground0 = seen & ~sky0
-    del bright, seen_rank, top
-    diag["sky_is_bright_initial"] = sky_is_bright
+    del top
+    diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
     # vertical step between row r-1 and r, stored at r (0 where either pixel is unseen)
     diff = np.zeros((H, W), dtype=np.float32)
@@ -192,19 +252,19 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     line = None
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
-        p, stats = _class_llr(feats, sky_cls, ground_cls, floors)
+        p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap)
         # sky probability, in place: 1 / (1 + exp(-llr))
         np.clip(p, -20.0, 20.0, out=p)
         np.negative(p, out=p)
         np.exp(p, out=p)
         p += 1.0
         np.reciprocal(p, out=p)
-        mu_s, mu_g = stats[0][0], stats[0][2]
-        if not (np.isfinite(mu_s) and np.isfinite(mu_g)):
-            diag.update(reason="one class only", intensity_sky=mu_s, intensity_ground=mu_g)
+        mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
+        if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
+            diag.update(reason="one class only", intensity_sky=glob_s[0], intensity_ground=glob_g[0])
             return _empty(W, diag)
-        polarity = 1.0 if mu_g > mu_s else -1.0      # sign of the sky -> ground step going down
-        contrast = abs(mu_g - mu_s)
+        polarity = np.where(mu_g >= mu_s, 1.0, -1.0).astype(np.float32)   # sky -> ground step sign, per column
+        contrast = np.abs(mu_g - mu_s)
         # region cost of a boundary just above row b: sky-like pixels below + ground-like above
         qcum = np.zeros((H + 1, W), dtype=np.float32)
         np.cumsum(np.where(seen, p - np.float32(0.5), np.float32(0.0)), axis=0, out=qcum[1:])
@@ -215,8 +275,8 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         node *= np.float32(1.0 / P.region_scale_px)
         np.minimum(node, np.float32(P.region_cap), out=node)
         # + edge term: 1 - (sky -> ground step, scaled to the scene contrast)
-        step = diff if polarity > 0 else -diff
-        edge = np.clip(step * np.float32(1.0 / max(0.5 * contrast, 1e-3)), 0.0, 1.0)
+        edge = diff * (polarity / np.maximum(0.5 * contrast, 1e-3).astype(np.float32))[None, :]
+        np.clip(edge, 0.0, 1.0, out=edge)
         edge *= np.float32(-P.edge_weight)
         edge += np.float32(P.edge_weight)
         node += edge
@@ -239,14 +299,16 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
             ground_cls &= seen
             if sky_cls.sum() < 50 or ground_cls.sum() < 50:
                 break
-    diag.update(intensity_sky=float(mu_s), intensity_ground=float(mu_g), texture_sky=float(stats[1][0]),
-                texture_ground=float(stats[1][2]), intensity_sigma_sky=float(stats[0][1]),
-                intensity_sigma_ground=float(stats[0][3]),
-                separation=float(contrast / np.hypot(stats[0][1], stats[0][3])))
-
+    sep_col = contrast / np.hypot(sd_s, sd_g)
+    diag.update(intensity_sky=float(np.median(mu_s)), intensity_ground=float(np.median(mu_g)),
+                texture_sky=float(np.median(stats[1][0])), texture_ground=float(np.median(stats[1][2])),
+                intensity_sigma_sky=float(np.median(sd_s)), intensity_sigma_ground=float(np.median(sd_g)),
+                polarity_flipped_fraction=float(np.mean(polarity < 0)),
+                separation=float(np.median(sep_col)))
+    step = diff * polarity[None, :]
     b = line.astype(np.int64)
     y = _subpixel(step, b)
-    conf = _confidence(grey, blur, p, seen, step, b, contrast, float(stats[0][1]), P)
+    conf = _confidence(grey, blur, p, seen, b, polarity, contrast, sd_s, P)
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
     valid = _drop_short_runs(valid, P.min_run_columns, wrap)
@@ -297,19 +359,18 @@ def _window_mean(a: np.ndarray, w: np.ndarray, b: np.ndarray, lo: int, hi: int) 
     return m, sw
 
 
-def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndarray, step: np.ndarray,
-                b: np.ndarray, contrast: float, sigma_sky: float, P: DetectorParams) -> np.ndarray:
+def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
+                polarity: np.ndarray, contrast: np.ndarray, sigma_sky: np.ndarray, P: DetectorParams) -> np.ndarray:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(blur, sf, b, -w, 0)
     below, n_below = _window_mean(blur, sf, b, 0, w)
-    polarity = np.sign(np.nanmedian(below - above)) or 1.0
     local = polarity * (below - above)
     # noise of a w-pixel mean of the blurred image: generous bound from the sky spread
-    noise = max(sigma_sky, 0.004) / np.sqrt(w)
+    noise = np.maximum(sigma_sky, 0.004) / np.sqrt(w)
     c_contrast = np.minimum(np.clip((local / noise - 3.0) / 3.0, 0, 1),
-                            np.clip((local / max(contrast, 1e-3) - 0.1) / 0.2, 0, 1))
+                            np.clip((local / np.maximum(contrast, 1e-3) - 0.1) / 0.2, 0, 1))
     R = P.region_window_px
     sky_like = (p > 0.5).astype(np.float32)
     fs, ns = _window_mean(sky_like, sf, b, -R, 0)

@@ -178,7 +178,8 @@ def test_line_above_the_view_is_masked():
     hidden = f(az) > 30.0 - GEOM.elevation_step_deg    # skyline at or above the top row there
     assert not det.valid[hidden].any()
     err = det.line_row - _truth_rows(f)
-    assert np.nanmax(np.abs(err)) <= 2.0
+    # the peak's flanks climb 4 rows per column: a row error there is a fraction of a column sideways
+    assert np.nanmean(np.abs(err)) <= 0.5 and np.nanmax(np.abs(err)) <= 3.0
 
 
 def test_baseline_runs_the_report_method():
@@ -196,3 +197,18 @@ def test_drop_short_runs_wraps():
     np.testing.assert_array_equal(out, [1, 1, 0, 0, 0, 0, 1, 1, 1, 0, 1, 1])
     out = _drop_short_runs(v, 3, wrap=False)
     np.testing.assert_array_equal(out, [0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0])
+
+
+def test_ground_brighter_than_sky_on_one_side_only():
+    # sunlit flank: the ground is darker than the sky on one half of the circle, brighter on the other
+    f = SkylineFunction.random(71)
+    shaded = synth_panorama(GEOM, f, look=SceneLook(sky_top=0.6, sky_horizon=0.55, ground=0.3), noise_sigma=0.01)
+    sunlit = synth_panorama(GEOM, f, look=SceneLook(sky_top=0.6, sky_horizon=0.55, ground=0.85, texture=0.08),
+                            noise_sigma=0.01, seed=1)
+    img = shaded.copy()
+    img[:, GEOM.width // 2:] = sunlit[:, GEOM.width // 2:]
+    det = detect_skyline(_u8(img), wrap=True)
+    err = det.line_row - _truth_rows(f)
+    half = GEOM.width // 2
+    assert det.valid[:half].mean() >= 0.9 and det.valid[half:].mean() >= 0.9
+    assert np.nanmean(np.abs(err)) <= 0.5
