@@ -1,0 +1,61 @@
+"""The confidence is calibrated: 95 % regions hold the truth, wrong fixes are not `ok`."""
+import math
+
+import numpy as np
+import pytest
+
+from board.locate import locate
+from board.pose.confidence import CHI2_2D_95, effective_samples, ellipse_95
+
+
+def test_effective_samples_white_and_correlated():
+    rng = np.random.default_rng(0)
+    n = 4000
+    white = rng.normal(size=n)
+    assert 0.8 * n <= effective_samples(white) <= 1.2 * n
+    rho = 0.8  # AR(1): n_eff = n (1 - rho) / (1 + rho)
+    ar = np.empty(n)
+    ar[0] = rng.normal()
+    for i in range(1, n):
+        ar[i] = rho * ar[i - 1] + rng.normal() * math.sqrt(1 - rho ** 2)
+    want = n * (1 - rho) / (1 + rho)
+    assert 0.6 * want <= effective_samples(ar) <= 1.5 * want
+
+
+def test_ellipse_95_axes():
+    a, b, az = ellipse_95(np.array([[4.0, 0.0], [0.0, 1.0]]))  # sigma_x 2 m, sigma_y 1 m
+    assert a == pytest.approx(2.0 * math.sqrt(CHI2_2D_95)) and b == pytest.approx(math.sqrt(CHI2_2D_95))
+    assert az == pytest.approx(90.0)  # major axis along x = east
+
+
+def _trial(w, rng, inside=True):
+    if inside:
+        x, y = w.random_xy(rng)
+    else:  # an impostor: a place outside the database's grid (its truth is not in the database)
+        a, d = rng.uniform(0, 2 * np.pi), rng.uniform(250.0, 550.0)
+        x0, y0, x1, y1 = w.db.grid.bounds()
+        x, y = (x0 + x1) / 2 + d * math.sin(a), (y0 + y1) / 2 + d * math.cos(a)
+    h = rng.uniform(0, 360)
+    tilt, phi = rng.choice([0.0, 5.0, 10.0]), rng.uniform(0, 2 * np.pi)
+    arc = rng.choice([65, 120, 242, 360])
+    sky = w.query(x, y, heading=h, pitch=tilt * math.cos(phi), roll=tilt * math.sin(phi),
+                  noise=rng.choice([0.03, 0.1, 0.2]), arc=arc, arc_start=rng.uniform(0, 360), rng=rng)
+    fix = locate(w.db, sky)
+    d = np.array([fix.x - x, fix.y - y])
+    m2 = float(d @ np.linalg.solve(fix.cov_xy, d)) if np.linalg.det(fix.cov_xy) > 0 else math.inf
+    return float(np.hypot(*d)), m2, fix.status
+
+
+@pytest.mark.slow
+def test_calibration_over_many_synthetic_trials(raymarch_world):
+    """Ray-marched queries (off grid, 0-10 deg tilt, 65-360 deg seen, 0.03-0.2 deg noise) and impostors."""
+    w = raymarch_world
+    rng = np.random.default_rng(2026)
+    inside = [_trial(w, rng) for _ in range(50)]
+    impostors = [_trial(w, rng, inside=False) for _ in range(15)]
+    err, m2, status = (np.array(v) for v in zip(*inside))
+    assert np.mean(m2 <= CHI2_2D_95) >= 0.9  # the 95 % region holds the truth
+    wrong_status = [s for e, _, s in inside + impostors if e > 5 * w.step]
+    assert len(wrong_status) >= 10  # the impostors alone are wrong by construction
+    assert np.mean([s != "ok" for s in wrong_status]) >= 0.9
+    assert np.mean(status[err <= 5 * w.step] == "ok") >= 0.6  # and the matcher is not merely shy
