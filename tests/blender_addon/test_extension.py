@@ -96,7 +96,11 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
         s.grid_half_m = 50.0
         assert bpy.ops.skyloc.build_terrain() == {"FINISHED"}
         assert s.progress == pytest.approx(1.0) and "done" in s.status
-        assert len(bpy.data.collections["SkylocTerrain"].objects) > 0
+        objs = bpy.data.collections["SkylocTerrain"].objects
+        assert len(objs) > 0
+        # large UTM coordinates stay out of the float32 vertices: the scene origin is the stored offset
+        assert tuple(bpy.context.scene["skyloc_offset"])[:2] == pytest.approx((500_000.0, 4_000_000.0))
+        assert max(abs(c) for o in objs for v in o.data.vertices for c in v.co[:2]) < 2_000.0
         s.heading_deg, s.pitch_deg, s.roll_deg = 30.0, 4.0, -2.0
         assert bpy.ops.skyloc.place_rover() == {"FINISHED"}
         cam = bpy.context.scene.camera
