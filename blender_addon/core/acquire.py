@@ -129,6 +129,25 @@ class Simulator:
         log.info("simulator: terrain of %s around (%.1f, %.1f) built in %.1f s", self.dem_spec, *self.site_xy,
                  time.perf_counter() - t0)
 
+    @classmethod
+    def adopt(cls, terrain, *, dem_spec: str, dem_path: str | os.PathLike | None = None,
+              grid_half_m: float = 200.0) -> "Simulator":
+        """A Simulator over ``terrain`` already built in the current Blender scene (by
+        :func:`blender_addon.scene.build_terrain`), without resetting the session: safe inside an
+        operator, where a factory reset would free the operator's own context."""
+        from blender_addon import scene as bscene
+
+        sim = cls.__new__(cls)
+        sim.dem_spec = str(dem_spec)
+        sim.dem_path = Path(dem_path) if dem_path is not None else Path(str(dem_spec))
+        sim.site_xy = (float(terrain.site_xy[0]), float(terrain.site_xy[1]))
+        sim.terrain = terrain
+        sim.grid_half_m = float(grid_half_m)
+        sim._scene = bscene
+        sim._token = uuid.uuid4().hex
+        bscene.state.get_scene()["skyloc_simulator"] = sim._token
+        return sim
+
     def _build(self) -> None:
         """(Re)build the Blender scene: empty session, terrain meshes, and this simulator's token."""
         self._scene.reset_scene()

@@ -180,6 +180,18 @@ def test_seeds_reproduce_bytes_and_manifest_validates(ring, tmp_path):
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())   # no temporary folders left
 
 
+def test_adopt_renders_the_scene_already_built(ring, tmp_path):
+    sim, _ = ring
+    sim._ensure_scene()
+    n_objects = len(bpy.data.objects)
+    adopted = Simulator.adopt(sim.terrain, dem_spec="ring.tif", grid_half_m=60.0)
+    assert len(bpy.data.objects) == n_objects                   # nothing reset or rebuilt
+    job = AcquisitionJob(Pose(X0, Y0, 0.0), get_preset("exomars", width=32), plan_frames(1, 65.0, 65.0),
+                         PRESETS["binary"])
+    img = load_acquisition(adopted.acquire(job, tmp_path / "adopt")).read_frame(0)
+    assert (img[-1] == 255).all() and (img[0] == 0).all()       # the wall's skyline crosses the frame
+
+
 def test_cli_acquire_writes_a_folder_and_refuses_bad_input(tmp_path):
     from skyloc.cli import main
 
