@@ -408,15 +408,13 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     status, reason = "ok", ""
     far_mass, ratio = float("nan"), float("nan")
     if smap is not None:
-        rr, cc = np.mgrid[smap.region.row0:smap.region.row0 + smap.region.nrows,
-                          smap.region.col0:smap.region.col0 + smap.region.ncols]
-        gx, gy = g.xy(rr, cc)
         smin = float(np.min(smap.score))
         s2c = smin / max(q.n_seen - q.n_params, 1) * infl
         # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp
         s2c = max(s2c, s2 * infl)
-        lk = map_likelihood(smap.score, gx, gy, best_xy=(float(x), float(y)), s2=s2c,
-                            radius_m=th.ambiguity_radius_steps * step)
+        r0, c0 = smap.region.row0, smap.region.col0
+        lk = map_likelihood(smap.score, lambda r, c: g.xy(r + r0, c + c0), best_xy=(float(x), float(y)), s2=s2c,
+                            radius_m=th.ambiguity_radius_steps * step, step_m=step)
         cov_xy = cov_xy + lk.cov_xy
         far_mass, ratio = lk.far_mass, lk.ambiguity_ratio
     sig_x, sig_y = math.sqrt(max(cov_xy[0, 0], 0)), math.sqrt(max(cov_xy[1, 1], 0))

@@ -89,22 +89,41 @@ class MapLikelihood:
         return float(min(self.best_score / self.best_far_score, 1.0))
 
 
-def map_likelihood(score: np.ndarray, x: np.ndarray, y: np.ndarray, *, best_xy: tuple[float, float],
-                   s2: float, radius_m: float) -> MapLikelihood:
-    """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2), positions x, y (metres).
+def map_likelihood(score: np.ndarray, xy, *, best_xy: tuple[float, float], s2: float, radius_m: float,
+                   step_m: float) -> MapLikelihood:
+    """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2).
 
-    ``cov_xy`` is the weighted second moment of the positions about ``best_xy`` (the fix).
+    score : (nrows, ncols) map, inf where not scored; xy : function (rows, cols) -> (x, y) metres
+    of map indices.  ``cov_xy`` is the weighted second moment of the positions about ``best_xy``
+    (the fix).  Only positions with a weight above e^-20 are converted to coordinates, and the
+    best score farther than ``radius_m`` is found without building coordinate arrays for the
+    whole map (a 7 x 7 km map at 5 m has 1.96 M positions).
     """
-    ok = np.isfinite(score)
-    s = score[ok]
-    xs, ys = x[ok], y[ok]
-    smin = float(s.min())
-    w = np.exp(-(s - smin) / (2.0 * max(s2, 1e-12)))
+    s2 = max(s2, 1e-12)
+    smin = float(np.min(score))
+    sel = np.flatnonzero(score <= smin + 40.0 * s2)
+    r, c = np.divmod(sel, score.shape[1])
+    xs, ys = xy(r, c)
+    w = np.exp(-(score.flat[sel] - smin) / (2.0 * s2))
     w /= w.sum()
-    # second moment about the fix (not the mean): mass at another place widens the region around the fix
     dx, dy = xs - best_xy[0], ys - best_xy[1]
     cov = np.array([[w @ (dx * dx), w @ (dx * dy)], [w @ (dx * dy), w @ (dy * dy)]])
-    far = np.hypot(xs - best_xy[0], ys - best_xy[1]) > radius_m
+    far = np.hypot(dx, dy) > radius_m
     far_mass = float(w[far].sum())
-    best_far = float(s[far].min()) if far.any() else math.inf
+    # best score farther than radius_m: everything outside a box around the fix, plus the box's far corners
+    x00, y00 = xy(np.array([0]), np.array([0]))
+    ci = (y00[0] - best_xy[1]) / step_m  # map row of the fix (rows go south)
+    cj = (best_xy[0] - x00[0]) / step_m
+    k = int(math.ceil(radius_m / step_m)) + 1
+    i0, i1 = max(int(math.floor(ci)) - k, 0), min(int(math.ceil(ci)) + k + 1, score.shape[0])
+    j0, j1 = max(int(math.floor(cj)) - k, 0), min(int(math.ceil(cj)) + k + 1, score.shape[1])
+    parts = [score[:i0], score[i1:], score[i0:i1, :j0], score[i0:i1, j1:]]
+    best_far = min((float(p.min()) for p in parts if p.size), default=math.inf)
+    if i1 > i0 and j1 > j0:
+        bi, bj = np.mgrid[i0:i1, j0:j1]
+        bx, by = xy(bi, bj)
+        box = score[i0:i1, j0:j1]
+        out = np.hypot(bx - best_xy[0], by - best_xy[1]) > radius_m
+        if out.any():
+            best_far = min(best_far, float(box[out].min()))
     return MapLikelihood(cov, far_mass, best_far, smin)

@@ -59,3 +59,28 @@ def test_calibration_over_many_synthetic_trials(raymarch_world):
     assert len(wrong_status) >= 10  # the impostors alone are wrong by construction
     assert np.mean([s != "ok" for s in wrong_status]) >= 0.9
     assert np.mean(status[err <= 5 * w.step] == "ok") >= 0.6  # and the matcher is not merely shy
+
+
+def test_map_likelihood_matches_a_direct_evaluation():
+    from board.pose.confidence import map_likelihood
+    from board.skydb import GridSpec
+
+    g = GridSpec.from_center((500.0, -300.0), 300.0, 5.0)
+    rng = np.random.default_rng(3)
+    score = rng.uniform(5.0, 50.0, size=(g.ny, g.nx))
+    score[30, 20] = 1.0
+    score[33, 22] = 1.5  # a close second minimum (inside the radius)
+    score[5, 50] = 2.0   # and a far one
+    best = g.xy(30, 20)
+    lk = map_likelihood(score, g.xy, best_xy=best, s2=0.5, radius_m=25.0, step_m=5.0)
+    rr, cc = np.mgrid[0:g.ny, 0:g.nx]
+    x, y = g.xy(rr, cc)
+    w = np.exp(-(score - 1.0) / 1.0)
+    w /= w.sum()
+    dx, dy = x - best[0], y - best[1]
+    far = np.hypot(dx, dy) > 25.0
+    assert lk.best_far_score == pytest.approx(score[far].min())
+    assert lk.far_mass == pytest.approx(w[far].sum(), rel=1e-6)
+    np.testing.assert_allclose(lk.cov_xy, [[(w * dx * dx).sum(), (w * dx * dy).sum()],
+                                           [(w * dx * dy).sum(), (w * dy * dy).sum()]], rtol=1e-6)
+    assert lk.ambiguity_ratio == pytest.approx(0.5)
