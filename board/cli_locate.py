@@ -85,8 +85,18 @@ def locate_cmd(db_path: Path, sky_path: Path | None, acq_dir: Path | None, mode:
             raise InvalidInputError(f"--tilt-prior must be pitch,roll,sigma in degrees, got {tilt_prior!r}")
     db = SkyDB.open(db_path)
     sky = Skyline.load(sky_path) if sky_path is not None else _skyline_from_acquisition(acq_dir, db.meta.azimuth_step_deg)
-    fix = locate(db, sky, mode=mode, prior_xy=_pair(prior, "--prior"), radius_m=radius,
-                 heading_prior_deg=heading_prior, heading_window_deg=heading_window, tilt_prior=tp, model=model)
+    prior_xy = _pair(prior, "--prior")
+    with click.progressbar(length=len(db.tiles), label="matching", file=click.get_text_stream("stderr"),
+                           show_eta=True) as bar:
+        state = {"done": 0}
+
+        def progress(done: int, total: int) -> None:
+            bar.length = total
+            bar.update(done - state["done"] if done >= state["done"] else done)
+            state["done"] = done
+
+        fix = locate(db, sky, mode=mode, prior_xy=prior_xy, radius_m=radius, heading_prior_deg=heading_prior,
+                     heading_window_deg=heading_window, tilt_prior=tp, model=model, progress=progress)
     d = fix.to_json_dict()
     d["crs_wkt"] = db.grid.crs_wkt
     if out is not None:

@@ -428,11 +428,14 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     elif max(sig_x, sig_y) > th.max_sigma_steps * step:
         status, reason = "ambiguous", (f"position poorly constrained (1-sigma {max(sig_x, sig_y):.1f} m "
                                        f"> {th.max_sigma_steps * step:g} m)")
+    sig_h = math.sqrt(max(var("heading"), 0))
+    if status == "ok" and sig_h > th.max_sigma_heading_deg:
+        status, reason = "ambiguous", f"heading poorly constrained (1-sigma {sig_h:.1f} deg)"
     az, _ = enu_az_el(skyline.azimuths_deg(), np.nan_to_num(skyline.elevation_deg), v["heading"], v["pitch"],
                       v["roll"])
     return Fix(
         x=float(x), y=float(y), heading_deg=float(v["heading"]), pitch_deg=float(v["pitch"]), roll_deg=float(v["roll"]),
-        sigma_x_m=sig_x, sigma_y_m=sig_y, sigma_heading_deg=math.sqrt(max(var("heading"), 0)),
+        sigma_x_m=sig_x, sigma_y_m=sig_y, sigma_heading_deg=sig_h,
         cov_xy=cov_xy, status=status, reason=reason, elapsed_s=time.perf_counter() - t0, mode=mode,
         sigma_pitch_deg=math.sqrt(max(var("pitch"), 0)) if "pitch" in idx else float("nan"),
         sigma_roll_deg=math.sqrt(max(var("roll"), 0)) if "roll" in idx else float("nan"),

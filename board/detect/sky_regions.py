@@ -58,6 +58,8 @@ class DetectorParams:
     region_window_px: int = 30          # rows each side for the region consistency check
     min_confidence: float = 0.5
     min_run_columns: int = 5            # valid runs shorter than this are masked
+    mask_margin_columns: int = 6        # columns next to a masked one are masked too (the smooth path
+                                        # needs a few columns to leave a wrong row)
     saturation_level: float = 0.98      # fraction of full scale counted as saturated
     min_seen_rows: int = 3              # seen rows needed on each side of the line
     wrap_margin_columns: int = 200
@@ -109,11 +111,11 @@ def _texture(grey: np.ndarray, win: int) -> np.ndarray:
 
 
 def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
-    """Robust centre and spread (median, 1.4826 MAD) of a class, the spread floored; subsampled when large."""
+    """Robust centre and spread (median, 1.4826 MAD) of a class, the spread floored; subsampled to ~20k values."""
     if values.size < 10:
         return float("nan"), floor
-    if values.size > 200_000:
-        values = values[:: values.size // 200_000]
+    if values.size > 20_000:
+        values = values[:: values.size // 20_000]
     med = float(np.median(values))
     mad = 1.4826 * float(np.median(np.abs(values - med)))
     return med, max(mad, floor)
@@ -311,6 +313,7 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     conf = _confidence(grey, blur, p, seen, b, polarity, contrast, sd_s, P)
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
+    valid = _grow_mask(valid, P.mask_margin_columns, wrap)
     valid = _drop_short_runs(valid, P.min_run_columns, wrap)
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
@@ -378,17 +381,35 @@ def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndar
     c_region = np.minimum(np.clip((fs - 0.6) / 0.3, 0, 1), np.clip((fg - 0.45) / 0.3, 0, 1))
     # clipped on both sides of the line (glare, over-exposure, crushed blacks): the step is not measurable.
     # One clipped side is fine (a black lunar sky, a saturated sky over lit ground).
+    # Below the line the window is deep: glare that saturates the ground a few rows down also makes
+    # saturated ground pass for sky, which would pull the line down with full confidence.
     c_sat = np.ones(b.shape)
     for clipped in (grey >= P.saturation_level, grey <= 1.0 - P.saturation_level):
         c = clipped.astype(np.float32)
         f_above, _ = _window_mean(c, sf, b, -w, 0)
-        f_below, _ = _window_mean(c, sf, b, 0, w)
+        f_below, _ = _window_mean(c, sf, b, 0, R)
         c_sat = np.minimum(c_sat, 1.0 - np.clip(np.minimum(f_above, f_below) / 0.5, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f",
               np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5), np.mean(c_seen >= 0.5))
     return np.nan_to_num(conf, nan=0.0)
+
+
+def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:
+    """Invalidate the ``margin`` columns on each side of every invalid column (circularly when ``wrap``)."""
+    if margin <= 0 or valid.all() or not valid.any():
+        return valid
+    bad = ~valid
+    W = bad.size
+    grown = bad.copy()
+    for k in range(1, margin + 1):
+        if wrap:
+            grown |= np.roll(bad, k) | np.roll(bad, -k)
+        else:
+            grown[k:] |= bad[:-k] if k < W else False
+            grown[:-k] |= bad[k:] if k < W else False
+    return ~grown
 
 
 def _drop_short_runs(valid: np.ndarray, min_run: int, wrap: bool) -> np.ndarray:

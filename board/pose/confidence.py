@@ -33,12 +33,14 @@ class Thresholds:
     max_far_mass : posterior mass farther than the ambiguity radius above which the fix is ``ambiguous``
     ambiguity_radius_steps : radius (grid steps) beyond which a second minimum is a different place
     max_sigma_steps : a 1-sigma position error above this many grid steps is ``ambiguous``
+    max_sigma_heading_deg : a 1-sigma heading error above this is ``ambiguous``
     """
 
     max_rms_deg: float = 1.5
     max_far_mass: float = 0.01
     ambiguity_radius_steps: float = 5.0
     max_sigma_steps: float = 3.0
+    max_sigma_heading_deg: float = 2.0
 
 
 def effective_samples(residual: np.ndarray) -> float:
