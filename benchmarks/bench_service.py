@@ -124,7 +124,8 @@ def main(argv=None) -> None:
     p.add_argument("--size", type=float, default=500.0, help="grid side, m")
     p.add_argument("--step", type=float, default=5.0, help="grid step, m")
     p.add_argument("--azimuths", type=int, default=360)
-    p.add_argument("--tile", type=int, default=32)
+    p.add_argument("--tile", type=int, default=16,
+                   help="tile side; small grids need small tiles or the last tile leaves a worker idle")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--concurrency", type=int, default=200)
     p.add_argument("--rounds", type=int, default=5)

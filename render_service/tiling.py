@@ -124,18 +124,20 @@ def _store(path: str) -> JobStore:
     return _STORES[path]
 
 
-def build_terrain_task(dem_path: str, site_xy: tuple[float, float], grid_half_m: float, azimuth_step_deg: float,
-                       out_dir: str, body: str | float | None) -> str:
-    """Build the multi-resolution terrain of a job into ``out_dir`` (atomically); returns ``out_dir``."""
-    from blender_addon.terrain.multires import build_multires  # noqa: PLC0415
+def build_terrain_task(rjob, out_dir: str) -> str:
+    """Build a job's multi-resolution terrain into ``out_dir`` (atomically); returns ``out_dir``.
+
+    ``rjob`` is the :class:`render_service.dbrender.RenderJob`; the terrain is planned exactly as
+    ``skyloc db render`` plans it (:func:`render_service.dbrender.load_terrain`).
+    """
+    from render_service.dbrender import load_terrain  # noqa: PLC0415
 
     out = Path(out_dir)
     if (out / "terrain.json").is_file():
         return str(out)
     tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
-    build_multires(dem_path, tuple(site_xy), grid_half_m=grid_half_m, azimuth_step_deg=azimuth_step_deg,
-                   out_dir=tmp, body=body)
+    load_terrain(rjob, terrain_dir=tmp)
     try:
         os.rename(tmp, out)
     except OSError:
@@ -393,9 +395,7 @@ class JobRunner:
 
         rjob = prepare_db_job(spec, dem)
         if not (terrain_dir / "terrain.json").is_file():
-            half = max(rjob.grid.nx, rjob.grid.ny) * abs(rjob.grid.geotransform[1]) / 2.0
-            fut = self.client.submit(build_terrain_task, dem.path, tuple(spec["center"]), half,
-                                     360.0 / int(spec["azimuths"]), str(terrain_dir), dem.body, pure=False)
+            fut = self.client.submit(build_terrain_task, rjob, str(terrain_dir), pure=False)
             self._wait_one(fut, job.id)
         self._ensure_store(db_path, rjob.meta)
 
