@@ -40,12 +40,14 @@ class MarchOptions:
     step_per_m : step growth with distance (metres of step per metre of distance; 0.01 ~ 0.57 deg)
     block_cells : sizes (small, big) of the blocks used for empty-space skipping, in cells
     seed_growth : ratio of the sparse geometric pre-pass that seeds the best tangent (0: none)
+    chunk_positions : consecutive positions a thread marches together, azimuth by azimuth
     """
 
     min_step_cells: float = 0.25
     step_per_m: float = 0.01
     block_cells: tuple[int, int] = (8, 64)
     seed_growth: float = 1.2
+    chunk_positions: int = 32
 
 
 DEFAULT_OPTIONS = MarchOptions()
@@ -175,8 +177,8 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
     py = np.ascontiguousarray(np.ravel(y_m), dtype=np.float64)
     if px.shape != py.shape:
         raise InvalidInputError("x and y must have the same number of positions")
-    if not (options.min_step_cells > 0 and options.step_per_m >= 0):
-        raise InvalidInputError("min_step_cells must be > 0 and step_per_m >= 0")
+    if not (options.min_step_cells > 0 and options.step_per_m >= 0 and options.chunk_positions >= 1):
+        raise InvalidInputError("min_step_cells must be > 0, step_per_m >= 0 and chunk_positions >= 1")
     pk = _packed(terrain, options)
     sin_az, cos_az = _direction_tables(spec)
     c_per_m = (1.0 - spec.refraction_k) / (2.0 * spec.body_radius_m)
@@ -184,7 +186,7 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
     max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
     return _kernels.render_positions(px, py, float(spec.camera_height_m), sin_az, cos_az, *pk.kernel_args(),
                                      c_per_m, min_step, min_step, float(options.step_per_m), max_dist,
-                                     float(options.seed_growth))
+                                     float(options.seed_growth), int(options.chunk_positions))
 
 
 def check_positions_inside(terrain: MultiResTerrain, x_m, y_m) -> None:
