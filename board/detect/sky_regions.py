@@ -58,8 +58,8 @@ class DetectorParams:
     region_window_px: int = 30          # rows each side for the region consistency check
     min_confidence: float = 0.5
     min_run_columns: int = 5            # valid runs shorter than this are masked
-    mask_margin_columns: int = 6        # columns next to a masked one are masked too (the smooth path
-                                        # needs a few columns to leave a wrong row)
+    mask_margin_columns: int = 6        # columns next to a masked run (>= min_run_columns) are masked too:
+                                        # the smooth path needs a few columns to leave a wrong row
     saturation_level: float = 0.98      # fraction of full scale counted as saturated
     min_seen_rows: int = 3              # seen rows needed on each side of the line
     wrap_margin_columns: int = 200
@@ -315,7 +315,9 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     conf = _confidence(grey, blur, p, seen, b, polarity, contrast, sd_s, P)
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
-    valid = _grow_mask(valid, P.mask_margin_columns, wrap)
+    # grow only the masked runs that are long enough to have dragged the smooth path off the line
+    long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
+    valid &= _grow_mask(long_bad, P.mask_margin_columns, wrap)
     valid = _drop_short_runs(valid, P.min_run_columns, wrap)
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
@@ -391,6 +393,9 @@ def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndar
         f_above, _ = _window_mean(c, sf, b, -w, 0)
         f_below, _ = _window_mean(c, sf, b, 0, R)
         c_sat = np.minimum(c_sat, 1.0 - np.clip(np.minimum(f_above, f_below) / 0.5, 0, 1))
+    # a saturated "sky" is no evidence of sky (glare, over-exposure): mask when most of it is clipped
+    f_sky_sat, _ = _window_mean((grey >= P.saturation_level).astype(np.float32), sf, b, -R, 0)
+    c_sat = np.minimum(c_sat, 1.0 - np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f",
