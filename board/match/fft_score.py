@@ -26,7 +26,7 @@ is compared with database sample ``(j + a) mod N``; the heading is
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -134,6 +134,23 @@ class QueryModel:
     spec_basis: np.ndarray
     sum_we2: float
     basis_e: np.ndarray
+    # whitening: minv = chol @ chol.T; c = chol.T @ b has |c|^2 = b^T minv b
+    chol: np.ndarray = None  # type: ignore[assignment]
+    spec_white: np.ndarray = None  # type: ignore[assignment]
+    white_e: np.ndarray = None  # type: ignore[assignment]
+    _tiled: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def tiled(self, rows: int) -> dict:
+        """The query spectra repeated on ``rows`` rows (contiguous, for cv2.mulSpectrums); cached."""
+        big = max((k for k in self._tiled if k >= rows), default=None)
+        if big is None:
+            self._tiled.clear()
+            big = max(rows, 1)
+            rep = lambda v: np.ascontiguousarray(np.broadcast_to(v, (big, self.n)))  # noqa: E731
+            self._tiled[big] = {"we": rep(self.spec_we), "w": rep(self.spec_w),
+                                "white": [rep(v) for v in self.spec_white]}
+        t = self._tiled[big]
+        return {"we": t["we"][:rows], "w": t["w"][:rows], "white": [v[:rows] for v in t["white"]]}
 
     @property
     def n_seen(self) -> int:
@@ -175,11 +192,16 @@ def prepare_query(elevation_deg: np.ndarray, *, azimuth_start_deg: float = 0.0, 
         raise InvalidInputError("the seen part of the query skyline is too short to separate offset and tilt; "
                                 "use --tilt none or give a wider panorama")
     minv = np.linalg.inv(gram)
+    minv = (minv + minv.T) / 2.0
+    chol = np.linalg.cholesky(minv)
     full = bool(seen.all())
+    spec_basis = dft_rows(basis)
+    basis_e = basis @ e
     return QueryModel(
         n=n, seen=seen, e=e, theta_deg=theta, basis=basis, minv=minv, model=model, ridge=float(ridge), full=full,
-        spec_we=dft_rows((w * e)[None])[0], spec_w=dft_rows(w[None])[0], spec_basis=dft_rows(basis),
-        sum_we2=float((w * e * e).sum()), basis_e=basis @ e,
+        spec_we=dft_rows((w * e)[None])[0], spec_w=dft_rows(w[None])[0], spec_basis=spec_basis,
+        sum_we2=float((w * e * e).sum()), basis_e=basis_e,
+        chol=chol, spec_white=chol.T @ spec_basis, white_e=chol.T @ basis_e,
     )
 
 
@@ -222,22 +244,25 @@ def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.nd
     n = q.n
     if q.full:
         return _score_full(q, sc, want_b)
-    # partial: quadratic term sum w r^2 and projections b_k = basis_k . r, each one inverse DFT
+    # partial: quadratic term sum w r^2, then the whitened projections c = chol^T b (one inverse DFT each);
+    # products of spectra by cv2.mulSpectrums (CCS, rows), linear combinations before the inverse DFTs
+    t = q.tiled(s.shape[0])
+    flags = cv2.DFT_ROWS
     s2c = dft_rows(s * s)
-    acc = np.zeros_like(sc)
-    mac_conj(acc, sc, q.spec_we, -2.0)
-    mac_conj(acc, s2c, q.spec_w, 1.0)
-    quad = idft_rows(acc) + q.sum_we2
+    acc = cv2.mulSpectrums(s2c, t["w"], flags, conjB=True)
+    acc -= 2.0 * cv2.mulSpectrums(sc, t["we"], flags, conjB=True)
+    scores = idft_rows(acc)
+    scores += q.sum_we2
     k = q.n_params
-    b = np.empty((k,) + s.shape)
+    c = np.empty((k,) + s.shape)
     for i in range(k):
-        acc[...] = 0.0
-        mac_conj(acc, sc, q.spec_basis[i], -1.0)
-        b[i] = idft_rows(acc) + q.basis_e[i]
-    scores = quad - np.einsum("ipa,ij,jpa->pa", b, q.minv, b, optimize=True)
+        c[i] = q.white_e[i] - idft_rows(cv2.mulSpectrums(sc, t["white"][i], flags, conjB=True))
+        scores -= c[i] * c[i]
     np.maximum(scores, 0.0, out=scores)
-    del n
-    return ScoreBlock(scores, b if want_b else None)
+    b = None
+    if want_b:
+        b = np.linalg.solve(q.chol.T, c.reshape(k, -1)).reshape(c.shape)
+    return ScoreBlock(scores, b)
 
 
 def _score_full(q: QueryModel, sc: np.ndarray, want_b: bool) -> ScoreBlock:
@@ -245,8 +270,7 @@ def _score_full(q: QueryModel, sc: np.ndarray, want_b: bool) -> ScoreBlock:
     n = q.n
     skip = 1 if q.model == "offset" else 2
     ec = q.spec_we[None]
-    acc = np.zeros_like(sc)
-    mac_conj(acc, sc, q.spec_we, 1.0)
+    acc = cv2.mulSpectrums(sc, q.tiled(sc.shape[0])["we"], cv2.DFT_ROWS, conjB=True)
     acc[:, 0] = 0.0
     if skip == 2:
         acc[:, 1:3] = 0.0

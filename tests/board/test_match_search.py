@@ -29,6 +29,7 @@ def test_streamed_search_equals_exhaustive(mountain_world, model, arc):
 @pytest.mark.parametrize("model", ["offset", "tilt"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_pruning_returns_the_exhaustive_argmin(mountain_world, model, seed):
+    """Parseval pruning (full panoramas): same argmin, exact scores within the factor, bounds elsewhere."""
     w = mountain_world
     rng = np.random.default_rng(seed)
     x, y = w.random_xy(rng)
