@@ -240,6 +240,22 @@ def test_kill9_of_a_worker_mid_job_loses_and_repeats_nothing(server_a, clean_run
     assert server_a.client.get("/healthz").json()["workers"] == 2  # the nanny restarted the worker
 
 
+def test_failing_tiles_are_retried_then_the_job_fails_with_the_reason(server_a, clean_run):
+    _, dem, _, _ = clean_run
+    job_id = server_a.client.post("/v1/jobs", json=job_spec(dem, camera_height_m=1.9)).json()["id"]
+    t_end = time.monotonic() + 240
+    while server_a.client.get(f"/v1/jobs/{job_id}").json()["tiles_done"] < 1 and time.monotonic() < t_end:
+        time.sleep(0.05)
+    # damage the store under the running job (as a failing disk would): every later tile write fails
+    (server_a.data_dir / "jobs" / job_id / "db.zarr" / "elevation" / "zarr.json").write_text("{broken")
+    j = server_a.wait_job(job_id)
+    assert j["state"] == "failed", j
+    # 1 try + max_tile_retries=2, and the reason of the last failure (the store's damaged metadata)
+    assert "failed 3 times" in j["error"] and ("corrupt" in j["error"] or "JSON" in j["error"]), j["error"]
+    assert j["result_url"] is None and server_a.client.get(f"/v1/jobs/{job_id}/result").status_code == 409
+    assert server_a.client.get("/healthz").json()["status"] == "ok"
+
+
 def test_cancel_running_job_publishes_nothing(server_a, clean_run):
     _, dem, _, _ = clean_run
     sub = server_a.client.post("/v1/jobs", json=job_spec(dem, size_m=300, tile_size=8))  # 151 x 151, 361 tiles
