@@ -3,8 +3,8 @@
 Stable API used by the simulator (H5b's dressing and acquisitions) and the skyline renderer::
 
     reset_scene() -> Scene
-    build_terrain(terrain, *, offset=None, curvature=True, refraction_k=0.0, chunk_cells=256, progress=None)
-        -> SceneOffset
+    build_terrain(terrain, *, offset=None, curvature=True, radius_m=None, refraction_k=0.0, refine=True,
+                  refine_half_m=None, chunk_cells=256, progress=None) -> SceneOffset
     place_camera(x, y, z, heading_deg, pitch_deg=0.0, roll_deg=0.0, *, name="SkylocCamera") -> Object
     configure_cycles(*, samples=16, denoise=False) / configure_binary(*, samples=1) / clear_binary()
     render_equirect(path, *, width, height, az_range_deg=(-180, 180), el_range_deg=(-90, 90)) -> Path
