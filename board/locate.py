@@ -32,6 +32,8 @@ MODES = ("lost", "window", "heading")
 NOMINAL_NOISE_DEG = 0.1
 #: a coarse tilt estimate above this (degrees) triggers a second search with the levelled query
 RELEVEL_DEG = 1.5
+#: the second (levelled) search only visits positions whose first score is within this factor of the best
+RELEVEL_KEEP = 10.0
 #: candidates whose coarse score exceeds this factor times the best are not refined
 CANDIDATE_FACTOR = 3.0
 
@@ -215,6 +217,15 @@ def _parallax_weights(db: SkyDB, local: LocalDB, fi: float, fj: float, init: dic
     return noise ** 2 / (noise ** 2 + par ** 2)
 
 
+def _competitive(smap: ScoreMap, factor: float) -> Region:
+    """The positions of ``smap`` scoring within ``factor`` of its best, as a masked region (grid indices)."""
+    keep = smap.score <= factor * float(np.min(smap.score)) + 1e-12
+    rows, cols = np.flatnonzero(keep.any(axis=1)), np.flatnonzero(keep.any(axis=0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    return Region(smap.region.row0 + int(r0), smap.region.col0 + int(c0), int(r1 - r0), int(c1 - c0),
+                  keep[r0:r1, c0:c1].copy())
+
+
 def _noise_from_score(score: float, q) -> float:
     """Per-sample noise (degrees) implied by a coarse best score: weighs an IMU prior against the skyline."""
     return max(math.sqrt(max(score, 0.0) / max(q.n_seen - q.n_params, 1)), 0.02)
@@ -282,12 +293,12 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
     level = (0.0, 0.0) if tilt_prior is None else (float(tilt_prior[0]), float(tilt_prior[1]))
     ridge = 0.0 if tilt_prior is None else (NOMINAL_NOISE_DEG / tilt_prior[2]) ** 2
 
-    def coarse(level):
+    def coarse(level, reg=region):
         e = skyline.elevation_deg if level == (0.0, 0.0) else level_skyline(skyline.elevation_deg, theta_all, *level)
         q = prepare_query(e, azimuth_start_deg=q0, model=model, ridge=ridge)
         if mode == "heading":
             return q, None
-        return q, search(db, q, region=region, allowed_shifts=allowed, prune=prune, progress=progress)
+        return q, search(db, q, region=reg, allowed_shifts=allowed, prune=prune, progress=progress)
 
     def best_refined(q, smap, level):
         if mode == "heading":
@@ -332,7 +343,7 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
         # the first-harmonic model is first order: search again with the query levelled by the estimate
         level2 = (ref.values["pitch"], ref.values["roll"])
         log.info("tilt %.1f deg: second search with the levelled query", tilt_est)
-        q2, smap2 = coarse(level2)
+        q2, smap2 = coarse(level2, None if smap is None else _competitive(smap, RELEVEL_KEEP))
         ref2, local2 = best_refined(q2, smap2, level2)
         if ref2.cost <= ref.cost:
             q, smap, ref, local = q2, smap2, ref2, local2

@@ -232,15 +232,17 @@ def lower_bound_full(q: QueryModel, sc: np.ndarray) -> np.ndarray:
 def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.ndarray | None = None) -> ScoreBlock:
     """Exact scores (degrees^2) of query ``q`` against database skylines ``db`` (P, N) for every shift.
 
-    ``db`` must be finite (fill or drop missing samples first).  ``sc`` may pass the CCS
-    spectrum of the row-centred ``db`` when the caller already has it.
+    ``db`` must be finite (fill or drop missing samples first).  A caller that already has the
+    CCS spectrum ``sc`` passes it with ``db`` centred row by row (mean 0).
     """
     db = np.asarray(db, dtype=np.float64)
     if db.ndim != 2 or db.shape[1] != q.n:
         raise InvalidInputError(f"database block has shape {db.shape}, expected (P, {q.n})")
-    s = db - db.mean(axis=1, keepdims=True)  # any per-row offset is absorbed by mu: improves conditioning
     if sc is None:
+        s = db - db.mean(axis=1, keepdims=True)  # any per-row offset is absorbed by mu: improves conditioning
         sc = dft_rows(s)
+    else:
+        s = db  # the caller centred the rows and transformed them
     n = q.n
     if q.full:
         return _score_full(q, sc, want_b)
@@ -248,20 +250,24 @@ def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.nd
     # products of spectra by cv2.mulSpectrums (CCS, rows), linear combinations before the inverse DFTs
     t = q.tiled(s.shape[0])
     flags = cv2.DFT_ROWS
-    s2c = dft_rows(s * s)
+    s2c = dft_rows(cv2.multiply(s, s))
     acc = cv2.mulSpectrums(s2c, t["w"], flags, conjB=True)
-    acc -= 2.0 * cv2.mulSpectrums(sc, t["we"], flags, conjB=True)
+    cv2.scaleAdd(cv2.mulSpectrums(sc, t["we"], flags, conjB=True), -2.0, acc, dst=acc)
     scores = idft_rows(acc)
-    scores += q.sum_we2
     k = q.n_params
     c = np.empty((k,) + s.shape)
+    sq = np.zeros(s.shape)
     for i in range(k):
-        c[i] = q.white_e[i] - idft_rows(cv2.mulSpectrums(sc, t["white"][i], flags, conjB=True))
-        scores -= c[i] * c[i]
+        # -c_i = idft(...) - white_e_i; only its square enters the score
+        c[i] = idft_rows(cv2.mulSpectrums(sc, t["white"][i], flags, conjB=True))
+        c[i] -= q.white_e[i]
+        cv2.accumulateSquare(c[i], sq)
+    cv2.subtract(scores, sq, dst=scores)
+    scores += q.sum_we2
     np.maximum(scores, 0.0, out=scores)
     b = None
     if want_b:
-        b = np.linalg.solve(q.chol.T, c.reshape(k, -1)).reshape(c.shape)
+        b = np.linalg.solve(q.chol.T, -c.reshape(k, -1)).reshape(c.shape)
     return ScoreBlock(scores, b)
 
 

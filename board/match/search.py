@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,11 +142,22 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
     use_prune = prune and q.full  # the bound holds for every heading, so also under a heading window
     best = np.inf
     tiles = _tiles_in(db, region)
+
+    def read(t: Tile) -> np.ndarray:
+        r0, r1 = max(t.row0, region.row0), min(t.row0 + t.nrows, region.row0 + region.nrows)
+        c0, c1 = max(t.col0, region.col0), min(t.col0 + t.ncols, region.col0 + region.ncols)
+        return db.read_tile(Tile(t.ti, t.tj, r0, c0, r1 - r0, c1 - c0))
+
+    # the next tile is read (and decompressed) in a thread while this one is scored: two tiles in memory
+    pool = ThreadPoolExecutor(max_workers=1)
+    pending = pool.submit(read, tiles[0]) if tiles else None
     for it, t in enumerate(tiles):
         r0, r1 = max(t.row0, region.row0), min(t.row0 + t.nrows, region.row0 + region.nrows)
         c0, c1 = max(t.col0, region.col0), min(t.col0 + t.ncols, region.col0 + region.ncols)
-        sub = Tile(t.ti, t.tj, r0, c0, r1 - r0, c1 - c0)
-        el = db.read_tile(sub).reshape(-1, q.n).astype(np.float64)
+        el32 = pending.result()
+        pending = pool.submit(read, tiles[it + 1]) if it + 1 < len(tiles) else None
+        el = el32.reshape(-1, q.n).astype(np.float64)
+        del el32
         oi, oj = np.mgrid[r0 - region.row0:r1 - region.row0, c0 - region.col0:c1 - region.col0]
         oi, oj = oi.ravel(), oj.ravel()
         keep = np.ones(el.shape[0], bool) if region.mask is None else region.mask[oi, oj]
@@ -153,9 +165,9 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
         keep &= np.isfinite(el).all(axis=1)
         el, oi, oj = el[keep], oi[keep], oj[keep]
         for b0 in range(0, el.shape[0], BLOCK):
-            blk = el[b0:b0 + BLOCK]
+            s = el[b0:b0 + BLOCK]
             bi, bj = oi[b0:b0 + BLOCK], oj[b0:b0 + BLOCK]
-            s = blk - blk.mean(axis=1, keepdims=True)
+            s -= s.mean(axis=1, keepdims=True)  # scores are offset-invariant: centre (in place)
             sc = dft_rows(s)
             if use_prune and np.isfinite(best):
                 lb = lower_bound_full(q, sc)
@@ -165,8 +177,8 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
                 out.n_pruned += int(pr.sum())
                 if not todo.any():
                     continue
-                blk, sc, bi, bj = blk[todo], sc[todo], bi[todo], bj[todo]
-            scores = score_block(q, blk, want_b=False, sc=sc).scores
+                s, sc, bi, bj = s[todo], sc[todo], bi[todo], bj[todo]
+            scores = score_block(q, s, want_b=False, sc=sc).scores
             if penalty is not None:
                 scores = scores + penalty
             a = np.argmin(scores, axis=1)
@@ -178,6 +190,7 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             best = min(best, float(smin.min()))
         if progress is not None:
             progress(it + 1, len(tiles))
+    pool.shutdown()
     if not np.isfinite(out.score).any():
         raise NoDataError("no database skyline in the search area could be scored (missing tiles or "
                           "positions?): check that the database render is complete (`skyloc db info`)")
