@@ -217,7 +217,7 @@ class Simulator:
                      "overlap": job.plan.overlap},
             "degradation": deg.to_dict(),
             "seed": int(job.seed),
-            "samples": int(job.samples),
+            "samples": 1 if deg.binary else int(job.samples),
             "denoise": bool(job.denoise),
             "render_pinhole": pinhole.to_dict(),
             "dressing": {**info.to_dict(), "sun_visible": bool(sun_seen)},

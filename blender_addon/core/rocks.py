@@ -169,10 +169,12 @@ def rock_prototypes(n_shapes: int, rng: np.random.Generator, *, subdivisions: in
     for _ in range(n_shapes):
         dirs = rng.normal(size=(6, 3))
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        amps = rng.uniform(0.05, 0.22, 6)
+        amps = rng.uniform(0.05, 0.25, 6)
         bump = (amps[None, :] * np.clip(base @ dirs.T, 0.0, None) ** 2).sum(axis=1)
-        facet = rng.normal(size=(3, 3))
-        flat = 1.0 - 0.15 * np.abs(np.tanh(base @ facet.T)).max(axis=1)
+        # a few planar cuts make the rocks angular rather than pebble-round
+        facet = rng.normal(size=(4, 3))
+        facet /= np.linalg.norm(facet, axis=1, keepdims=True)
+        flat = 1.0 - 0.6 * np.clip(base @ facet.T - 0.45, 0.0, None).max(axis=1)
         v = base * (0.5 * (1.0 + bump) * flat)[:, None]
         v[:, 2] = np.maximum(v[:, 2], -0.15)
         out.append(v)

@@ -50,7 +50,7 @@ SUN_IRRADIANCE = 5.0
 #: Angular diameter of the Sun seen from Mars, degrees.
 SUN_DIAMETER_DEG = 0.35
 REGOLITH_RGB = np.array([0.62, 0.42, 0.28])
-ROCK_RGB = np.array([0.42, 0.36, 0.31])
+ROCK_RGB = np.array([0.46, 0.35, 0.28])
 
 
 @dataclass(frozen=True)
@@ -299,8 +299,7 @@ def _triangle_mesh(name: str, verts: np.ndarray, tris: np.ndarray) -> bpy.types.
     me.loops.foreach_set("vertex_index", np.ascontiguousarray(tris, dtype=np.int32).ravel())
     me.polygons.add(len(tris))
     me.polygons.foreach_set("loop_start", np.arange(0, 3 * len(tris), 3, dtype=np.int32))
-    me.update(calc_edges=True)
-    me.shade_smooth() if hasattr(me, "shade_smooth") else None
+    me.update(calc_edges=True)     # flat shading: faceted, angular rocks
     return me
 
 
@@ -356,7 +355,7 @@ def _place_rocks(scene, terrain: MultiResTerrain, deg: Degradation, center_xy, r
         scene.collection.children.link(coll)
     me = _triangle_mesh(ROCK_OBJECT, verts, tris)
     mat = bpy.data.materials.get(ROCK_MATERIAL) or bpy.data.materials.new(ROCK_MATERIAL)
-    _surface_material(mat, deg, ROCK_RGB, 0.6 * deg.regolith_albedo, 0.5, 1,
+    _surface_material(mat, deg, ROCK_RGB, 0.5 * deg.regolith_albedo, 0.5, 1,
                       horizon_rgb, patch_m=0.8, mottle_m=0.05, bump=0.4)
     me.materials.append(mat)
     obj = bpy.data.objects.new(ROCK_OBJECT, me)
