@@ -410,7 +410,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         return float(cov[idx[name], idx[name]]) if name in idx else 0.0
 
     cov = cov + _interpolation_bias_cov(local, ref, info_unscaled=J.T @ J + ref.prior_info)
-    cov_xy = np.zeros((2, 2))
+    cov_xy = np.full((2, 2), np.nan)  # heading mode: the position is given, not estimated
     if "row" in idx:
         T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)
         sub = cov[np.ix_([idx["row"], idx["col"]], [idx["row"], idx["col"]])]

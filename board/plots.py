@@ -81,7 +81,8 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
         ax_sky.set_ylabel("elevation (deg)")
         ax_sky.legend(loc="upper right", fontsize=8)
     ax_sky.set_title(f"x {fix.x:.1f} y {fix.y:.1f} heading {fix.heading_deg:.2f} pitch {fix.pitch_deg:.2f} "
-                     f"roll {fix.roll_deg:.2f} | sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m", fontsize=9)
+                     f"roll {fix.roll_deg:.2f} | sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m, "
+                     f"{fix.sigma_heading_deg:.2f} deg", fontsize=9)
     fig.tight_layout()
     tmp = out.with_name(out.name + ".part.png")
     fig.savefig(tmp, dpi=110)
