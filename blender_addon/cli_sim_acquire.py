@@ -83,7 +83,11 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
 @click.option("--set", "sets", multiple=True, help="Only this set (repeatable), e.g. --set REF --set CLUT.")
 @click.option("--no-resume", is_flag=True, help="Re-render acquisitions that are already there.")
 @click.option("--check", is_flag=True, help="Only validate the scene file and list the sets.")
-def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume: bool, check: bool) -> None:
+@click.option("--limit", type=int, default=None, help="At most this many acquisitions per set (preview).")
+@click.option("--width", type=int, default=None, help="Render every camera at this width (preview).")
+@click.option("--samples", type=int, default=None, help="Cycles samples per pixel instead of the scene's.")
+def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume: bool, check: bool,
+                limit: int | None, width: int | None, samples: int | None) -> None:
     """Render the test sets of a scene file (e.g. scenes/robustness.toml) with their manifests."""
     from tqdm import tqdm
 
@@ -104,7 +108,7 @@ def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume:
             bar.update(done - bar.n)
 
         path = generate_dataset(scene_toml, out_dir, progress=progress, sets=list(sets) or None,
-                                resume=not no_resume)
+                                resume=not no_resume, limit=limit, width=width, samples=samples)
     click.echo(f"wrote {path}")
 
 

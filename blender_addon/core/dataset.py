@@ -23,6 +23,7 @@ import logging
 import os
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -127,12 +128,27 @@ def _grid_half(scene: SceneSpec, site: SiteSpec, jobs: Sequence[AcquisitionJob])
 
 def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, *, progress: Progress | None = None,
                      sets: Sequence[str] | None = None, cache_dir: str | os.PathLike | None = None,
-                     resume: bool = True) -> Path:
+                     resume: bool = True, limit: int | None = None, width: int | None = None,
+                     samples: int | None = None) -> Path:
     """Render every set of ``scene_toml`` (or only ``sets``) into ``out_dir``; returns the dataset.json path.
 
-    Raises InvalidInputError for a bad scene file before anything is rendered.
+    limit : at most this many acquisitions per set (the first ones: same poses and seeds)
+    width : render every camera at this width (same fields of view), e.g. for a quick preview
+    samples : Cycles samples per pixel instead of the scene's
+    The overrides are recorded in dataset.json.  Raises InvalidInputError for a bad scene file
+    or option before anything is rendered.
     """
     scene = load_scene(scene_toml)
+    if limit is not None and limit < 1:
+        raise InvalidInputError(f"limit must be >= 1 acquisition per set, got {limit}")
+    if width is not None and width < 8:
+        raise InvalidInputError(f"width must be at least 8 pixels, got {width}")
+    if samples is not None and samples < 1:
+        raise InvalidInputError(f"samples must be >= 1, got {samples}")
+    if width is not None:
+        scene = replace(scene, cameras={k: c.resized(width) for k, c in scene.cameras.items()})
+    if samples is not None:
+        scene = replace(scene, samples=int(samples))
     chosen = [s for s in scene.sets if sets is None or s.name in sets]
     if sets is not None:
         unknown = sorted(set(sets) - {s.name for s in scene.sets})
@@ -143,7 +159,7 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
     out.mkdir(parents=True, exist_ok=True)
     cache = Path(cache_dir) if cache_dir is not None else None
     (out / "scene.toml").write_text(scene.text)
-    jobs_by_set = {s.name: set_jobs(scene, s) for s in chosen}
+    jobs_by_set = {s.name: set_jobs(scene, s)[:limit] for s in chosen}
     total = sum(len(j) for j in jobs_by_set.values())
     done = 0
     t0 = time.perf_counter()
@@ -197,7 +213,8 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
     manifest = {"format": DATASET_FORMAT, "version": DATASET_VERSION, "name": scene.name,
                 "description": scene.description, "seed": scene.seed, "samples": scene.samples,
                 "scene_file": "scene.toml", "scene_sha256": hashlib.sha256(scene.text.encode()).hexdigest(),
-                "sites": site_docs, "sets": set_docs, "elapsed_s": round(time.perf_counter() - t0, 1)}
+                "sites": site_docs, "sets": set_docs, "elapsed_s": round(time.perf_counter() - t0, 1),
+                "overrides": {"limit": limit, "width": width, "samples": samples}}
     path = out / DATASET_MANIFEST
     _write_json(path, manifest)
     log.info("dataset %s: %d acquisitions in %s", scene.name, total, out)

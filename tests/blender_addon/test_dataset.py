@@ -65,9 +65,53 @@ def test_same_seed_same_images_and_resume(tiny, tmp_path):
     assert {p: p.stat().st_mtime_ns for p in out.rglob("frame_*.png")} == stamps
 
 
+def test_preview_overrides_limit_width_and_samples(tmp_path):
+    path = generate_dataset(TINY, tmp_path / "preview", sets=["REF"], limit=1, width=32, samples=1)
+    doc = json.loads(path.read_text())
+    assert doc["overrides"] == {"limit": 1, "width": 32, "samples": 1}
+    manifest = json.loads((tmp_path / "preview" / "REF" / "manifest.json").read_text())
+    assert len(manifest["acquisitions"]) == 1
+    acq = load_acquisition(tmp_path / "preview" / "REF" / "acq_000")
+    assert (acq.camera.width, acq.camera.height) == (32, 32) and acq.meta["samples"] == 1
+    # the preview keeps the full set's first pose and seed
+    first = set_jobs(load_scene(TINY), load_scene(TINY).set_by_name("REF"))[0]
+    assert (acq.truth.x, acq.truth.y, acq.meta["seed"]) == (first.pose.x, first.pose.y, first.seed)
+
+
 def test_unknown_set_is_refused_before_rendering(tmp_path):
     from board.errors import InvalidInputError
 
     with pytest.raises(InvalidInputError, match="sets XYZ are not in"):
         generate_dataset(TINY, tmp_path / "x", sets=["XYZ"])
+    with pytest.raises(InvalidInputError, match="width must be at least 8"):
+        generate_dataset(TINY, tmp_path / "x", width=4)
     assert not (tmp_path / "x").exists()
+
+
+def test_flattened_site_dem_keeps_georeferencing_and_nodata(tmp_path):
+    gdal = pytest.importorskip("osgeo.gdal")
+    import numpy as np
+    from osgeo import osr
+
+    from blender_addon.core.dataset import scaled_dem
+
+    gdal.UseExceptions()
+    src = tmp_path / "src.tif"
+    z = np.random.default_rng(0).uniform(-50, 300, (700, 300)).astype(np.float32)   # > one 512-row block
+    z[3, 4] = -9999.0
+    ds = gdal.GetDriverByName("GTiff").Create(str(src), 300, 700, 1, gdal.GDT_Float32)
+    ds.SetGeoTransform((1000.0, 2.0, 0.0, 5000.0, 0.0, -2.0))
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(32633)
+    ds.SetProjection(srs.ExportToWkt())
+    ds.GetRasterBand(1).SetNoDataValue(-9999.0)
+    ds.GetRasterBand(1).WriteArray(z)
+    ds = None
+    out = scaled_dem(src, 0.1, tmp_path / "sites" / "flat.tif")
+    d = gdal.Open(str(out))
+    a = d.GetRasterBand(1).ReadAsArray()
+    assert d.GetGeoTransform() == (1000.0, 2.0, 0.0, 5000.0, 0.0, -2.0)
+    assert osr.SpatialReference(wkt=d.GetProjectionRef()).IsSame(srs)
+    assert a[3, 4] == -9999.0 and d.GetRasterBand(1).GetNoDataValue() == -9999.0
+    keep = z != -9999.0
+    np.testing.assert_allclose(a[keep], z[keep] * 0.1, rtol=1e-6)
