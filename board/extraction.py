@@ -30,6 +30,7 @@ from board.acquisition import Acquisition, Panorama, PanoramaGeometry, load_acqu
 from board.conventions import DEFAULT_N_AZIMUTH, azimuth_grid_deg
 from board.detect import Detection, DetectorParams, detect_skyline
 from board.detect.preprocess import to_grey01
+from board.errors import InvalidInputError
 from board.panorama import build_panorama
 from board.skyline import Skyline
 
@@ -94,23 +95,50 @@ def _jsonable(d: dict) -> dict:
     return out
 
 
+def _with_sampling(options: ExtractionOptions, azimuth_step_deg: float | None,
+                   azimuth_start_deg: float | None) -> ExtractionOptions:
+    """Options with the skyline's azimuth sampling replaced (a step must divide 360 degrees)."""
+    from dataclasses import replace
+
+    if azimuth_step_deg is not None:
+        n = 360.0 / float(azimuth_step_deg) if azimuth_step_deg > 0 else float("nan")
+        if not (np.isfinite(n) and abs(n - round(n)) < 1e-6):
+            raise InvalidInputError(f"azimuth step {azimuth_step_deg} deg does not divide 360 degrees: "
+                                    "use the database's step (e.g. 1, 0.5, 0.25)")
+        options = replace(options, n_azimuth=int(round(n)))
+    if azimuth_start_deg is not None:
+        options = replace(options, azimuth_start_deg=float(azimuth_start_deg))
+    return options
+
+
 def extract_from_acquisition(acq: Acquisition | str | os.PathLike, *, refine_yaw: bool = False,
-                             azimuth_step_deg: float | None = None,
+                             azimuth_step_deg: float | None = None, azimuth_start_deg: float | None = None,
+                             panorama_step_deg: float | None = None,
                              options: ExtractionOptions = ExtractionOptions()) -> ExtractionResult:
-    """Build the panorama of an acquisition (folder or object) and extract its skyline."""
+    """Build the panorama of an acquisition (folder or object) and extract its skyline.
+
+    azimuth_step_deg / azimuth_start_deg : sampling of the returned skyline (the database's, degrees;
+    default ``options``: 1 degree from 0 = the heading); panorama_step_deg : panorama resolution,
+    degrees per pixel (default: the camera's native resolution); refine_yaw : correct the pan angles
+    by matching overlapping frames.
+    """
     t0 = time.perf_counter()
+    options = _with_sampling(options, azimuth_step_deg, azimuth_start_deg)
     if not isinstance(acq, Acquisition):
         acq = load_acquisition(Path(acq))
-    pano = build_panorama(acq, refine_yaw=refine_yaw, azimuth_step_deg=azimuth_step_deg)
+    pano = build_panorama(acq, refine_yaw=refine_yaw, azimuth_step_deg=panorama_step_deg)
     res = extract_from_panorama(pano, options=options)
     res.elapsed_s = time.perf_counter() - t0
     return res
 
 
-def extract_from_panorama(pano: Panorama | str | os.PathLike, *,
+def extract_from_panorama(pano: Panorama | str | os.PathLike, *, azimuth_step_deg: float | None = None,
+                          azimuth_start_deg: float | None = None,
                           options: ExtractionOptions = ExtractionOptions()) -> ExtractionResult:
-    """Detect the skyline of a panorama (folder or object) and sample it on the skyline azimuth grid."""
+    """Detect the skyline of a panorama (folder or object) and sample it on the skyline azimuth grid
+    (``azimuth_step_deg`` / ``azimuth_start_deg`` override ``options``, degrees)."""
     t0 = time.perf_counter()
+    options = _with_sampling(options, azimuth_step_deg, azimuth_start_deg)
     if not isinstance(pano, Panorama):
         pano = load_panorama(Path(pano))
     res = _extract(pano, options)

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from board.acquisition import GroundTruth, Panorama, PanoramaGeometry, write_panorama
 from board.camera import CameraModel
+from board.errors import InvalidInputError
 from board.extraction import (STATUS_FAILED, STATUS_OK, extract_from_acquisition, extract_from_panorama,
                               panorama_line_to_skyline)
 from board.skyline import Skyline
@@ -54,6 +55,16 @@ def test_other_azimuth_grids(acquisition):
     assert sk.n == 720 and sk.azimuths_deg()[1] == pytest.approx(0.75)
     err = sk.elevation_deg - f(sk.azimuths_deg())
     assert np.nanmean(np.abs(err)) <= res.panorama.geometry.elevation_step_deg
+
+
+def test_sampling_keywords_as_locate_uses_them(acquisition):
+    # `skyloc locate --acquisition` asks for the database's azimuth step
+    d, f = acquisition
+    res = extract_from_acquisition(d, azimuth_step_deg=0.5)
+    assert res.skyline.n == 720 and res.skyline.azimuth_step_deg == 0.5
+    assert res.panorama.geometry.azimuth_step_deg < 0.25          # the panorama keeps its own resolution
+    with pytest.raises(InvalidInputError, match="does not divide 360"):
+        extract_from_acquisition(d, azimuth_step_deg=0.7)
 
 
 def test_point_sampling_is_exact_for_a_linear_line():
