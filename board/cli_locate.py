@@ -86,17 +86,21 @@ def locate_cmd(db_path: Path, sky_path: Path | None, acq_dir: Path | None, mode:
     db = SkyDB.open(db_path)
     sky = Skyline.load(sky_path) if sky_path is not None else _skyline_from_acquisition(acq_dir, db.meta.azimuth_step_deg)
     prior_xy = _pair(prior, "--prior")
-    with click.progressbar(length=len(db.tiles), label="matching", file=click.get_text_stream("stderr"),
-                           show_eta=True) as bar:
-        state = {"done": 0}
+    kw = dict(mode=mode, prior_xy=prior_xy, radius_m=radius, heading_prior_deg=heading_prior,
+              heading_window_deg=heading_window, tilt_prior=tp, model=model)
+    err = click.get_text_stream("stderr")
+    if err.isatty():  # a progress bar on a terminal only (it would pollute captured output)
+        with click.progressbar(length=len(db.tiles), label="matching", file=err, show_eta=True) as bar:
+            state = {"done": 0}
 
-        def progress(done: int, total: int) -> None:
-            bar.length = total
-            bar.update(done - state["done"] if done >= state["done"] else done)
-            state["done"] = done
+            def progress(done: int, total: int) -> None:
+                bar.length = total
+                bar.update(done - state["done"] if done >= state["done"] else done)
+                state["done"] = done
 
-        fix = locate(db, sky, mode=mode, prior_xy=prior_xy, radius_m=radius, heading_prior_deg=heading_prior,
-                     heading_window_deg=heading_window, tilt_prior=tp, model=model, progress=progress)
+            fix = locate(db, sky, progress=progress, **kw)
+    else:
+        fix = locate(db, sky, **kw)
     d = fix.to_json_dict()
     d["crs_wkt"] = db.grid.crs_wkt
     if out is not None:
