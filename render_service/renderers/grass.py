@@ -96,10 +96,10 @@ def r_horizon(dem: DemRaster, points_xy, *, step_deg: float = 1.0, workdir=None,
             "g.region raster=dem\n"
             f"g.region n={n!r} s={s!r} e={e!r} w={w!r} align=dem\n"
             "g.region -g | grep '^cells='\n"
-            "t0=$(date +%s.%N)\n"
+            "t0=$(date +%s%N)\n"
             f"r.horizon -d elevation=dem step={step_deg!r} bufferzone={buffer_m!r} distance=1.0 output=hor --quiet\n"
-            "t1=$(date +%s.%N)\n"
-            "echo \"seconds=$(echo \"$t1 - $t0\" | bc)\"\n"
+            "t1=$(date +%s%N)\n"
+            "echo \"milliseconds=$(( (t1 - t0) / 1000000 ))\"\n"
             "echo \"maps=$(g.list raster pattern='hor_*' sep=comma)\"\n"
             f"r.what map=$(g.list raster pattern='hor_*' sep=comma) coordinates={coords} separator=comma\n"
         )
@@ -109,7 +109,7 @@ def r_horizon(dem: DemRaster, points_xy, *, step_deg: float = 1.0, workdir=None,
             raise SkylocError(f"r.horizon failed ({proc.returncode}): {proc.stderr[-2000:]}")
         out = proc.stdout
         n_cells = int(re.search(r"^cells=(\d+)", out, re.M).group(1))
-        seconds = float(re.search(r"^seconds=([\d.]+)", out, re.M).group(1))
+        seconds = int(re.search(r"^milliseconds=(\d+)", out, re.M).group(1)) / 1000.0
         maps = re.search(r"^maps=(.*)$", out, re.M).group(1).split(",")
         labels = np.array([float(m[len("hor_"):].replace("_", ".")) for m in maps])
         rows = [ln for ln in out.splitlines() if ln.count(",") >= len(maps) + 2]
