@@ -185,8 +185,9 @@ def _merge(obj, d: dict, where: str):
         elif isinstance(current, (int, float)) and not isinstance(current, bool):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise InvalidInputError(f"{where}.{key}: expected a number, got {value!r}")
-            changes[key] = type(current)(value) if isinstance(current, int) and float(value).is_integer() \
-                else float(value)
+            if isinstance(current, int) and not float(value).is_integer():
+                raise InvalidInputError(f"{where}.{key}: expected a whole number, got {value!r}")
+            changes[key] = int(value) if isinstance(current, int) else float(value)
         elif isinstance(current, str):
             changes[key] = str(value)
         else:  # pragma: no cover - all fields are covered above

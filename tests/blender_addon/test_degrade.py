@@ -145,6 +145,8 @@ def test_parameter_errors_name_the_fix():
         Degradation.from_dict({"sky": {"dust_tau": -1}})
     with pytest.raises(InvalidInputError, match="expected a number"):
         Degradation.from_dict({"sensor": {"exposure_ev": "lots"}})
+    with pytest.raises(InvalidInputError, match="whole number"):
+        Degradation.from_dict({"rocks": {"near_count": 2.5}})
     with pytest.raises(InvalidInputError, match="use one of"):
         get_degradation("foggy")
     with pytest.raises(InvalidInputError, match="not invertible"):
