@@ -181,16 +181,19 @@ def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, flo
     return llr, stats
 
 
-def _otsu_split(blur: np.ndarray, seen: np.ndarray, top: np.ndarray) -> tuple[float, bool]:
-    """Otsu threshold (fraction of full scale) of the seen pixels and whether the sky is the bright class
-    (the class that fills the top of the seen area)."""
+def _otsu_split(blur: np.ndarray, seen: np.ndarray, top: np.ndarray, bottom: np.ndarray) -> tuple[float, bool]:
+    """Otsu threshold (fraction of full scale) of the seen pixels, and whether the sky is the bright
+    class: the top of the seen area (sky) is brighter than its bottom (ground).  Comparing the two
+    bands, not the band with the threshold, keeps a sky with a brightness gradient on the right side."""
     import cv2
 
     vals8 = np.clip(blur[seen] * 255.0 + 0.5, 0, 255).astype(np.uint8)
     thr, _ = cv2.threshold(vals8.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     thr = float(thr) / 255.0
-    t = blur[top]
-    return thr, bool(np.mean(t > thr) >= 0.5) if t.size else True
+    t, b = blur[top], blur[bottom]
+    if t.size == 0 or b.size == 0:
+        return thr, True
+    return thr, bool(np.median(t) >= np.median(b))
 
 
 def _bands_from_line(line: np.ndarray, H: int, margin: int) -> tuple[np.ndarray, np.ndarray]:
@@ -230,21 +233,23 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     edges = _sector_edges(W, P.n_sectors)
     seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
     n_seen_col = seen_rank[-1].copy()
-    top = seen & (seen_rank <= np.maximum(2, 0.1 * n_seen_col)[None, :])
+    band = np.maximum(2, 0.1 * n_seen_col)[None, :]
+    top = seen & (seen_rank <= band)
+    bottom = seen & (seen_rank > n_seen_col[None, :] - band)
     del seen_rank
-    g_thr, g_bright = _otsu_split(blur, seen, top)
+    g_thr, g_bright = _otsu_split(blur, seen, top, bottom)
     thr_s, bright_s = [], []
     for c0, c1 in zip(edges[:-1], edges[1:]):
         if seen[:, c0:c1].sum() < P.min_sector_pixels:
             thr_s.append(g_thr), bright_s.append(g_bright)
             continue
-        t, b_ = _otsu_split(blur[:, c0:c1], seen[:, c0:c1], top[:, c0:c1])
+        t, b_ = _otsu_split(blur[:, c0:c1], seen[:, c0:c1], top[:, c0:c1], bottom[:, c0:c1])
         thr_s.append(t), bright_s.append(b_)
     thr_col = np.repeat(np.array(thr_s, dtype=np.float32), np.diff(edges))
     bright_col = np.repeat(np.array(bright_s), np.diff(edges))
     sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
     ground0 = seen & ~sky0
-    del top
+    del top, bottom
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
     # vertical step between row r-1 and r, stored at r (0 where either pixel is unseen)
