@@ -315,24 +315,35 @@ def bilinear(image: np.ndarray, up: np.ndarray, vp: np.ndarray) -> np.ndarray:
     """Sample a (H, W) or (H, W, C) image at float pixel coordinates (pixel centres at integers).
 
     Coordinates are clamped to the image (edge pixels repeat); NaN coordinates give 0.
+    Returns float32, channel by channel (bounded memory on 20-megapixel frames).
     """
     h, w = image.shape[:2]
     bad = ~(np.isfinite(up) & np.isfinite(vp))
     uc = np.clip(np.where(bad, 0.0, up), 0.0, w - 1.0)
     vc = np.clip(np.where(bad, 0.0, vp), 0.0, h - 1.0)
-    u0 = np.minimum(np.floor(uc).astype(np.intp), w - 2) if w > 1 else np.zeros(uc.shape, np.intp)
-    v0 = np.minimum(np.floor(vc).astype(np.intp), h - 2) if h > 1 else np.zeros(vc.shape, np.intp)
-    fu = (uc - u0)
-    fv = (vc - v0)
-    u1 = np.minimum(u0 + 1, w - 1)
-    v1 = np.minimum(v0 + 1, h - 1)
-    if image.ndim == 3:
-        fu = fu[..., None]
-        fv = fv[..., None]
-        bad = bad[..., None]
-    out = (image[v0, u0] * (1 - fu) * (1 - fv) + image[v0, u1] * fu * (1 - fv)
-           + image[v1, u0] * (1 - fu) * fv + image[v1, u1] * fu * fv)
-    return np.where(bad, 0.0, out)
+    u0 = np.minimum(np.floor(uc).astype(np.intp), max(w - 2, 0))
+    v0 = np.minimum(np.floor(vc).astype(np.intp), max(h - 2, 0))
+    fu = (uc - u0).astype(np.float32)
+    fv = (vc - v0).astype(np.float32)
+    du = 1 if w > 1 else 0
+    dv = w if h > 1 else 0
+    i00 = v0 * w + u0
+    del uc, vc, u0, v0
+    w00 = (1 - fu) * (1 - fv)
+    w01 = fu * (1 - fv)
+    w10 = (1 - fu) * fv
+    w11 = fu * fv
+    del fu, fv
+
+    def sample(ch: np.ndarray) -> np.ndarray:
+        flat = np.ascontiguousarray(ch, dtype=np.float32).ravel()
+        out = (flat[i00] * w00 + flat[i00 + du] * w01 + flat[i00 + dv] * w10 + flat[i00 + dv + du] * w11)
+        out[bad] = 0.0
+        return out
+
+    if image.ndim == 2:
+        return sample(image)
+    return np.stack([sample(image[..., c]) for c in range(image.shape[2])], axis=-1)
 
 
 def distort_image(render: np.ndarray, pinhole: CameraModel, camera: CameraModel, *,

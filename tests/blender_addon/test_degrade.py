@@ -154,3 +154,26 @@ def test_parameter_errors_name_the_fix():
     d = Degradation.from_dict({"rocks": {"near_count": 3, "near_distance_m": [1.5, 3]}}, base=PRESETS["realistic"])
     assert d.rocks.near_count == 3 and d.rocks.near_distance_m == (1.5, 3.0)
     assert d.rocks.density_per_m2 == PRESETS["realistic"].rocks.density_per_m2
+
+
+def test_bilinear_matches_a_pixel_by_pixel_reference():
+    from blender_addon.core.degrade import bilinear
+
+    rng = np.random.default_rng(0)
+    img = rng.random((50, 70, 3)).astype(np.float32)
+    u = rng.uniform(-2, 72, (30, 40))
+    v = rng.uniform(-2, 52, (30, 40))
+    u[0, 0] = np.nan
+    ref = np.zeros(u.shape + (3,))
+    for i in np.ndindex(u.shape):
+        if not np.isfinite(u[i]):
+            continue
+        x, y = min(max(u[i], 0), 69), min(max(v[i], 0), 49)
+        x0, y0 = min(int(x), 68), min(int(y), 48)
+        fx, fy = x - x0, y - y0
+        ref[i] = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
+                  + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+    out = bilinear(img, u, v)
+    assert out.dtype == np.float32 and out[0, 0].tolist() == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(out, ref, atol=1e-6)
+    np.testing.assert_allclose(bilinear(img[..., 1], u, v), ref[..., 1], atol=1e-6)
