@@ -56,6 +56,8 @@ def _skyline_from_acquisition(acq_dir: Path, azimuth_step_deg: float):
               help="Heading prior, degrees clockwise from grid north.")
 @click.option("--heading-window", type=float, default=10.0, show_default=True,
               help="Half-width of the heading window around --heading-prior, degrees.")
+@click.option("--position-sigma", type=float, default=20.0, show_default=True,
+              help="Heading mode: expected error of --prior, metres (near horizon points are down-weighted).")
 @click.option("--tilt-prior", "tilt_prior", default=None,
               help="IMU pitch,roll,sigma in degrees (e.g. 4.5,-2.0,0.5).")
 @click.option("--model", type=click.Choice(["tilt", "offset"]), default="tilt", show_default=True,
@@ -66,7 +68,8 @@ def _skyline_from_acquisition(acq_dir: Path, azimuth_step_deg: float):
 @click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write the JSON fix to this file (atomically).")
 def locate_cmd(db_path: Path, sky_path: Path | None, acq_dir: Path | None, mode: str, prior: str | None,
-               radius: float | None, heading_prior: float | None, heading_window: float, tilt_prior: str | None,
+               radius: float | None, heading_prior: float | None, heading_window: float, position_sigma: float,
+               tilt_prior: str | None,
                model: str, as_json: bool, plot: Path | None, out: Path | None) -> None:
     """Locate the rover: exhaustive FFT match over the database, sub-grid and tilt refinement, confidence."""
     from board.locate import locate  # noqa: PLC0415
@@ -87,7 +90,7 @@ def locate_cmd(db_path: Path, sky_path: Path | None, acq_dir: Path | None, mode:
     sky = Skyline.load(sky_path) if sky_path is not None else _skyline_from_acquisition(acq_dir, db.meta.azimuth_step_deg)
     prior_xy = _pair(prior, "--prior")
     kw = dict(mode=mode, prior_xy=prior_xy, radius_m=radius, heading_prior_deg=heading_prior,
-              heading_window_deg=heading_window, tilt_prior=tp, model=model)
+              heading_window_deg=heading_window, tilt_prior=tp, model=model, position_sigma_m=position_sigma)
     err = click.get_text_stream("stderr")
     if err.isatty():  # a progress bar on a terminal only (it would pollute captured output)
         with click.progressbar(length=len(db.tiles), label="matching", file=err, show_eta=True) as bar:

@@ -240,7 +240,7 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
            prior_xy: tuple[float, float] | None = None, radius_m: float | None = None,
            heading_prior_deg: float | None = None, heading_window_deg: float = 10.0,
            tilt_prior: tuple[float, float, float] | None = None, model: str = "tilt", prune: bool = True,
-           n_candidates: int = 5, thresholds: Thresholds | None = None, position_sigma_m: float = 10.0,
+           n_candidates: int = 5, thresholds: Thresholds | None = None, position_sigma_m: float = 20.0,
            progress=None) -> Fix:
     """Estimate position, heading and tilt from a query skyline.
 
