@@ -21,12 +21,12 @@ GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
 
 
 @pytest.fixture(scope="module")
-def api_schema(dems_dir):
+def api_schema():
     from fastapi.testclient import TestClient
 
     data = Path(tempfile.mkdtemp(prefix="skyloc-schema-"))
     app = create_app(ServiceSettings(data_dir=data, token=TOKEN, start_cluster=False, max_upload_bytes=4_000_000))
-    gale = dems_dir / GALE
+    gale = Path(__file__).resolve().parents[3] / "shared" / "data" / "dems" / GALE  # optional: a DEM to refer to
     if gale.is_file():
         with TestClient(app) as c:
             r = c.post("/v1/dems", files={"file": ("gale.tif", gale.read_bytes())},
