@@ -32,6 +32,7 @@ bench-extract: install
 
 bench-blender: install
 	$(PY) -m benchmarks.bench_blender
+	$(PY) -m benchmarks.bench_sim_acquire --frames 3
 
 bench-service: install
 	$(PY) -m benchmarks.bench_service
