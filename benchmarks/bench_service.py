@@ -42,8 +42,9 @@ def _free_port() -> int:
 
 def run_cli(dem: Path, center: tuple[float, float], args, out: Path, height: float = 2.0) -> float:
     """Wall seconds of `skyloc db render` for the benchmark grid."""
-    cmd = [sys.executable, "-m", "skyloc.cli", "db", "render", "--dem", str(dem), "--center", f"{center[0]},{center[1]}",
-           "--size", str(args.size), "--step", str(args.step), "--azimuths", str(args.azimuths),
+    cmd = [sys.executable, "-m", "skyloc.cli", "db", "render", "--dem", str(dem),
+           "--center", f"{center[0]},{center[1]}", "--size", str(args.size), "--step", str(args.step),
+           "--azimuths", str(args.azimuths),
            "--tile", str(args.tile), "--height", str(height), "--out", str(out), "--no-progress"]
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -185,31 +186,35 @@ def main(argv=None) -> None:
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
+    lines: list[str] = []
+    out = lines.append
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    print(f"\n### Render service ({date}, {os.cpu_count()} cores shared, DEM {args.dem})\n")
-    print(f"Grid {args.size:g} m at {args.step:g} m = {positions} positions x {args.azimuths} azimuths, "
+    out(f"\n### Render service ({date}, {os.cpu_count()} cores shared, DEM {args.dem})\n")
+    out(f"Grid {args.size:g} m at {args.step:g} m = {positions} positions x {args.azimuths} azimuths, "
           f"tiles of {args.tile}, service with {args.workers} worker processes.\n")
     r_cli, r_svc = positions / max(t_cli - t_cli_fixed, 1e-9), positions / max(t_svc - t_svc_fixed, 1e-9)
-    print("| run | wall time (s) | fixed cost (s, 3 x 3 grid) | positions/s end to end | positions/s beyond fixed |")
-    print("| --- | ---: | ---: | ---: | ---: |")
-    print(f"| CLI `skyloc db render` (process start, imports, terrain build) | {t_cli:.1f} | {t_cli_fixed:.1f} | "
+    out("| run | wall time (s) | fixed cost (s, 3 x 3 grid) | positions/s end to end | positions/s beyond fixed |")
+    out("| --- | ---: | ---: | ---: | ---: |")
+    out(f"| CLI `skyloc db render` (process start, imports, terrain build) | {t_cli:.1f} | {t_cli_fixed:.1f} | "
           f"{positions / t_cli:,.0f} | {r_cli:,.0f} |")
-    print(f"| service: POST to done (terrain build as a task, warm workers) | {t_svc:.1f} | {t_svc_fixed:.1f} | "
+    out(f"| service: POST to done (terrain build as a task, warm workers) | {t_svc:.1f} | {t_svc_fixed:.1f} | "
           f"{positions / t_svc:,.0f} | {r_svc:,.0f} |")
-    print(f"\nFirst tiny job after the service started (cluster start, workers load numba): {t_warm:.1f} s.")
-    print("Per pair (CLI s / service s): " + ", ".join(f"{a:.1f} / {b:.1f}" for a, b in zip(t_clis, t_svcs)))
-    print(f"Service overhead vs CLI (medians of {args.repeats}), end to end: {100 * (t_svc / t_cli - 1):+.1f} %; "
+    out(f"\nFirst tiny job after the service started (cluster start, workers load numba): {t_warm:.1f} s.")
+    out("Per pair (CLI s / service s): " + ", ".join(f"{a:.1f} / {b:.1f}" for a, b in zip(t_clis, t_svcs)))
+    out(f"Service overhead vs CLI (medians of {args.repeats}), end to end: {100 * (t_svc / t_cli - 1):+.1f} %; "
           "rendering throughput "
           f"beyond the fixed costs: {100 * (r_cli / r_svc - 1):+.1f} % (target <= +10 %).\n")
     q = np.percentile(lat * 1000, [50, 99])
     qs = np.percentile(seq * 1000, [50, 99])
     note = "" if running else " (the job finished during the test)"
-    print("| status latency while a job renders, GET /v1/jobs/{id}, new connection each | p50 (ms) | p99 (ms) | max (ms) |")
-    print("| --- | ---: | ---: | ---: |")
-    print(f"| {args.rounds} bursts of {args.concurrency} concurrent requests{note} | {q[0]:.1f} | {q[1]:.1f} | "
+    out("| status latency while a job renders, GET /v1/jobs/{id}, new connection each "
+        "| p50 (ms) | p99 (ms) | max (ms) |")
+    out("| --- | ---: | ---: | ---: |")
+    out(f"| {args.rounds} bursts of {args.concurrency} concurrent requests{note} | {q[0]:.1f} | {q[1]:.1f} | "
           f"{lat.max() * 1000:.1f} |")
-    print(f"| 100 requests one at a time | {qs[0]:.1f} | {qs[1]:.1f} | {seq.max() * 1000:.1f} |")
+    out(f"| 100 requests one at a time | {qs[0]:.1f} | {qs[1]:.1f} | {seq.max() * 1000:.1f} |")
 
+    print("\n".join(lines))  # noqa: T201 (benchmark output)
 
 if __name__ == "__main__":
     main()

@@ -14,7 +14,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from board.errors import (DemReadError, FormatError, InvalidInputError, JobNotFoundError, SkylocError)
+from board.errors import DemReadError, FormatError, InvalidInputError, JobNotFoundError, SkylocError
 from render_service import __version__
 from render_service.api.deps import require_token
 from render_service.api.routes import dems, health, jobs, ui

@@ -114,8 +114,8 @@ def write_huge_sparse_tif(path: Path, size: int = 40_000) -> Path:
     """A tiny file declaring a size x size raster (sparse GeoTIFF: no tile is written)."""
     from osgeo import gdal
 
-    ds = gdal.GetDriverByName("GTiff").Create(str(path), size, size, 1, gdal.GDT_Float32,
-                                              options=["TILED=YES", "BLOCKXSIZE=1024", "BLOCKYSIZE=1024", "SPARSE_OK=TRUE", "BIGTIFF=YES"])
+    opts = ["TILED=YES", "BLOCKXSIZE=1024", "BLOCKYSIZE=1024", "SPARSE_OK=TRUE", "BIGTIFF=YES"]
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), size, size, 1, gdal.GDT_Float32, options=opts)
     ds.SetGeoTransform((500000.0, 1.0, 0.0, 4000000.0, 0.0, -1.0))
     from osgeo import osr
 

@@ -267,7 +267,8 @@ def test_token_never_in_logs_or_responses(tmp_path, caplog):
 
 
 def test_no_cors_by_default(app_client):
-    r = app_client.options("/v1/jobs", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "GET"})
+    r = app_client.options("/v1/jobs",
+                           headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "GET"})
     assert "access-control-allow-origin" not in {k.lower() for k in r.headers}
 
 

@@ -7,7 +7,8 @@ import logging
 import time
 from pathlib import Path
 
-from fastapi import APIRouter, Body, Depends, Header, HTTPException, Path as PathParam, Request, Response
+from fastapi import APIRouter, Body, Depends, Header, HTTPException, Request, Response
+from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from board.errors import InvalidInputError
@@ -48,8 +49,8 @@ def job_out(job: JobRecord, *, now: float | None = None) -> JobOut:
 
 
 def _not_available(what: str) -> HTTPException:
-    return HTTPException(501, f"{what} is not available on this server (its module is not installed); "
-                              "use the raymarch renderer or install the Blender extras", headers={"X-Code": "not_available"})
+    return HTTPException(501, f"{what} is not available on this server (its module is not installed): "
+                              "use the raymarch renderer or install the Blender extras")
 
 
 def _renderer_available(name: str) -> bool:
