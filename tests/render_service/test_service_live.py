@@ -313,3 +313,18 @@ def test_status_page_in_headless_chromium(server_a, clean_run, tmp_path):
 
     img = np.asarray(Image.open(shot).convert("L"))
     assert img.std() > 5  # not a blank page
+
+
+def test_dataset_job_renders_a_test_set(server_a, tmp_path):
+    if importlib.util.find_spec("blender_addon.core.dataset") is None or importlib.util.find_spec("bpy") is None:
+        pytest.skip("the simulator's dataset generator (and bpy) are not installed")
+    r = server_a.client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"})
+    assert r.status_code == 202, r.text
+    j = server_a.wait_job(r.json()["id"], timeout=600)
+    assert j["state"] == "done", j
+    folder = unzip(server_a.client.get(j["result_url"]).content, tmp_path / "ds")
+    check_manifest(folder)
+    index = json.loads((folder / "dataset" / "dataset.json").read_text())
+    assert index  # the generator's index of the sets it rendered
+    frames = list((folder / "dataset").rglob("frame_*.png"))
+    assert frames, "no rendered frame in the dataset"
