@@ -328,3 +328,30 @@ def test_dataset_job_renders_a_test_set(server_a, tmp_path):
     assert index  # the generator's index of the sets it rendered
     frames = list((folder / "dataset").rglob("frame_*.png"))
     assert frames, "no rendered frame in the dataset"
+
+
+def test_blender_renderer_job_agrees_with_the_raymarcher(server_a, clean_run):
+    """The same positions rendered by Blender (a second, independent renderer) through the service."""
+    if importlib.util.find_spec("bpy") is None:
+        pytest.skip("bpy is not installed: the blender renderer is not available")
+    job_a, dem, _, clean = clean_run
+    # 3 x 3 positions 10 m apart: a subset of the clean run's 2 m grid (same centre)
+    spec = job_spec(dem, size_m=20, step_m=10, tile_size=2, renderer="blender")
+    r = server_a.client.post("/v1/jobs", json=spec)
+    assert r.status_code == 202, r.text
+    j = server_a.wait_job(r.json()["id"], timeout=600)
+    assert j["state"] == "done", j
+    bl = SkyDB.open(server_a.data_dir / "jobs" / j["id"] / "db.zarr")
+    assert bl.meta.renderer == "blender"
+    rm = SkyDB.open(clean / "db.zarr")
+    got, want = [], []
+    for i in range(3):
+        for k in range(3):
+            x, y = bl.grid.xy(i, k)
+            ri, rk = (int(round(v)) for v in rm.grid.ij(float(x), float(y)))
+            np.testing.assert_allclose(rm.grid.xy(ri, rk), (x, y), atol=1e-6)
+            got.append(bl.skyline(i, k))
+            want.append(rm.skyline(ri, rk))
+    diff = np.abs(np.array(got) - np.array(want))
+    assert np.isfinite(diff).all()
+    assert np.median(diff) <= 0.1 and diff.max() <= 1.0, (np.median(diff), diff.max())
