@@ -57,7 +57,7 @@ def _skyline_from_acquisition(acq_dir: Path, azimuth_step_deg: float):
 @click.option("--heading-window", type=float, default=10.0, show_default=True,
               help="Half-width of the heading window around --heading-prior, degrees.")
 @click.option("--position-sigma", type=float, default=20.0, show_default=True,
-              help="Heading mode: expected error of --prior, metres (near horizon points are down-weighted).")
+              help="Heading mode: uncertainty of --prior, metres (searched together with the heading; 0: exact).")
 @click.option("--tilt-prior", "tilt_prior", default=None,
               help="IMU pitch,roll,sigma in degrees (e.g. 4.5,-2.0,0.5).")
 @click.option("--model", type=click.Choice(["tilt", "offset"]), default="tilt", show_default=True,

@@ -193,30 +193,6 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
     return ref, local
 
 
-def _parallax_weights(db: SkyDB, local: LocalDB, fi: float, fj: float, init: dict, theta, el, noise: float,
-                      position_sigma_m: float) -> np.ndarray | None:
-    """Heading mode: down-weight samples whose horizon is near (parallax from the position error).
-
-    A horizon point at distance d seen from a position wrong by ``position_sigma_m`` moves by
-    about ``position_sigma_m / d`` radians in azimuth and elevation; its elevation error is then
-    ``~ (180/pi) (position_sigma_m / d) sqrt((1 + slope^2) / 2)`` degrees (slope: d el / d az of the
-    skyline).  Weights are ``noise^2 / (noise^2 + that^2)``.  None when the database has no distances.
-    """
-    if not db.meta.has_distance or position_sigma_m <= 0:
-        return None
-    nr, nc, _ = local.el.shape
-    d = db.read_distance(Tile(-1, -1, local.row0, local.col0, nr, nc))
-    d = np.where(np.isfinite(d), d, 1e6).astype(np.float64)
-    dist = LocalDB(d, local.row0, local.col0, local.az_start_deg)
-    sky = local.skyline_at(fi, fj)
-    az, _ = enu_az_el(theta, el, init["heading"], init["pitch"], init["roll"])
-    n = sky.size
-    slope = (np.roll(sky, -1) - np.roll(sky, 1)) / (2 * 360.0 / n)
-    dj = np.maximum(dist.sample(dist.skyline_at(fi, fj), az), 1.0)
-    par = np.degrees(position_sigma_m / dj) * np.sqrt((1.0 + local.sample(slope, az) ** 2) / 2.0)
-    return noise ** 2 / (noise ** 2 + par ** 2)
-
-
 def _competitive(smap: ScoreMap, factor: float) -> Region:
     """The positions of ``smap`` scoring within ``factor`` of its best, as a masked region (grid indices)."""
     keep = smap.score <= factor * float(np.min(smap.score)) + 1e-12
@@ -249,15 +225,16 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
     db : SkyDB or path of a skyline database (Zarr)
     skyline : query skyline, azimuths relative to the heading, degrees; NaN where unseen
     mode : "lost" (whole grid), "window" (within ``radius_m`` of ``prior_xy``, default 30 m),
-        "heading" (position ``prior_xy`` given; heading within ``heading_window_deg`` of ``heading_prior_deg``)
+        "heading" (position ``prior_xy`` known to ``position_sigma_m``; heading within ``heading_window_deg``
+        of ``heading_prior_deg``)
     prior_xy : (x, y) metres in the database CRS
     heading_prior_deg : heading prior (degrees clockwise from grid north); restricts the heading in
         "heading" mode, and in the other modes too when given
     tilt_prior : (pitch, roll, sigma) degrees from an IMU
     model : coarse score, "tilt" (invariant to small pitch/roll) or "offset" (the report's metric)
     prune : exact Parseval pruning for full panoramas (the result is identical either way)
-    position_sigma_m : heading mode: expected error of the given position; near horizon points,
-        whose azimuth that error shifts, are down-weighted (needs horizon distances in the database)
+    position_sigma_m : heading mode: uncertainty of the given position (metres); position and heading are
+        estimated together within it (0: the position is taken as exact and only the heading and tilt fitted)
     """
     t0 = time.perf_counter()
     if not isinstance(db, SkyDB):
@@ -285,7 +262,10 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
     elif mode == "window":
         region = Region.disc(g, prior_xy, 30.0 if radius_m is None else radius_m)
     else:
-        region = Region.disc(g, prior_xy, step)
+        # the given position is a prior: position and heading are estimated together within its uncertainty
+        # (a heading from a wrong position is off by the horizon's parallax, position error / distance)
+        region = Region.disc(g, prior_xy, max(position_sigma_m, step))
+    fixed_position = mode == "heading" and position_sigma_m <= 0
 
     theta_all = skyline.azimuths_deg()
     seen = skyline.seen
@@ -296,12 +276,12 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
     def coarse(level, reg=region):
         e = skyline.elevation_deg if level == (0.0, 0.0) else level_skyline(skyline.elevation_deg, theta_all, *level)
         q = prepare_query(e, azimuth_start_deg=q0, model=model, ridge=ridge)
-        if mode == "heading":
+        if fixed_position:
             return q, None
         return q, search(db, q, region=reg, allowed_shifts=allowed, prune=prune, progress=progress)
 
     def best_refined(q, smap, level):
-        if mode == "heading":
+        if fixed_position:
             fi, fj = g.ij(*prior_xy)
             local = _local_db(db, int(round(fi)), int(round(fj)))
             sky = local.skyline_at(fi, fj)[None]
@@ -318,8 +298,7 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
                     "heading": heading_prior_deg + float(wrap_deg180(h0 - heading_prior_deg))}
             free = ("heading", "pitch", "roll") if model == "tilt" else ("heading",)
             noise = _noise_from_score(float(sc[a]), q)
-            weights = _parallax_weights(db, local, fi, fj, init, theta, el, noise, position_sigma_m)
-            return refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise, weights=weights,
+            return refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise,
                           bounds={"heading": (heading_prior_deg - heading_window_deg - 1,
                                               heading_prior_deg + heading_window_deg + 1)}), local
         best = None

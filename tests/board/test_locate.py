@@ -177,3 +177,16 @@ def test_truncated_database_is_refused(mountain_world, tmp_path):
     sky = mountain_world.query(*mountain_world.random_xy(np.random.default_rng(0)), heading=0.0)
     with pytest.raises(FormatError, match="truncated or corrupt"):
         locate(SkyDB.open(path), sky)
+
+
+def test_heading_mode_with_an_exact_position(raymarch_world):
+    """position_sigma_m=0: the position is taken as exact, only heading, pitch and roll are fitted."""
+    w = raymarch_world
+    rng = np.random.default_rng(17)
+    for _ in range(3):
+        x, y = w.random_xy(rng)
+        h = rng.uniform(0, 360)
+        sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
+        fix = locate(w.db, sky, mode="heading", prior_xy=(x, y), heading_prior_deg=h - 6.0, position_sigma_m=0)
+        assert _err(fix, x, y, h) == (pytest.approx(0.0, abs=1e-9), pytest.approx(0.0, abs=0.5))
+        assert math.isnan(fix.sigma_x_m) and fix.to_json_dict()["sigma_x_m"] is None
