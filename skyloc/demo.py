@@ -104,21 +104,32 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
 
 
 def _blender_leg(out, dem, db, x, y, heading, pitch, roll, height) -> dict:
-    """Binary panorama rendered in Blender -> extracted skyline -> locate."""
-    from blender_addon.sim_panorama import render_panorama_folder  # noqa: F401  (raises ImportError if absent)
+    """Binary panorama rendered in Blender (Cycles) -> extracted skyline -> locate."""
+    import bpy  # noqa: F401  (ImportError when Blender's module is not installed)
+
+    from blender_addon.scene import build_terrain, reset_scene
+    from blender_addon.scene.panorama import PanoramaPose, make_panorama
+    from blender_addon.terrain.multires import build_multires
     from board.extraction import extract_from_panorama
     from board.locate import locate
 
     t = time.perf_counter()
-    pano_dir = out / "panorama"
-    render_panorama_folder(dem=dem, x=x, y=y, height_m=height, heading_deg=heading, pitch_deg=pitch,
-                           roll_deg=roll, width=1440, binary=True, out=pano_dir)
+    terrain = build_multires(dem, (x, y), grid_half_m=50.0)
+    reset_scene()
+    build_terrain(terrain)
+    pano_dir = out / "panorama_binary"
+    make_panorama(terrain, PanoramaPose(x, y, height, heading, pitch, roll), pano_dir, width=1440, binary=True,
+                  dem=str(dem), build=False)
     res = extract_from_panorama(pano_dir)
+    if res.skyline is None:
+        _say(f"[5/5] Blender binary panorama {pano_dir}: extraction {res.status} ({res.reason})")
+        return {"status": res.status, "reason": res.reason}
     fix = locate(db, res.skyline, mode="lost")
     err = math.hypot(fix.x - x, fix.y - y)
     herr = abs((fix.heading_deg - heading + 180) % 360 - 180)
-    _say(f"[5/5] Blender binary panorama -> extracted skyline ({res.status}) -> fix error {err:.2f} m, heading "
-         f"error {herr:.2f} deg, status {fix.status} ({time.perf_counter() - t:.1f} s)")
+    _say(f"[5/5] Blender binary panorama {pano_dir} -> extracted skyline ({res.status}, "
+         f"{res.skyline.coverage_deg:.0f} deg seen) -> fix error {err:.2f} m, heading error {herr:.2f} deg, "
+         f"pitch {fix.pitch_deg:.2f} roll {fix.roll_deg:.2f}, status {fix.status} ({time.perf_counter() - t:.1f} s)")
     return {"error_m": err, "heading_error_deg": herr, "status": fix.status}
 
 
