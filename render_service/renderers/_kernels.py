@@ -78,11 +78,125 @@ def _exit_distance(u, v, du, dv, lo_u, hi_u, lo_v, hi_v):
     return t
 
 
+@njit(inline="always", **_NOGIL)
+def _seg_tan(a_rel, b, c_rel, t):
+    """Tangent ``(a_rel + b t + c_rel t^2) / t`` of the surface-minus-eye quadratic at distance t > 0."""
+    return a_rel / t + b + c_rel * t
+
+
+@njit(**_NOGIL)
+def near_field(px, py, z_eye, sx, sy, heights, off, nrows, ncols, x0, y0, cell, c_per_m, t_end, best, best_d):
+    """Exact horizon tangent over distances (0, t_end] on one level (level 0): no sampling.
+
+    The ray crosses the level's cell-centre lattice (the cells of the bilinear interpolation)
+    cell by cell (2-D DDA).  Inside one cell the bilinear surface along the ray is a quadratic
+    ``z(t) = a + b t + c t^2`` in the distance t (metres); with the curvature drop
+    ``c_per_m t^2`` the tangent ``f(t) = (a - z_eye)/t + b + (c - c_per_m) t`` has at most one
+    stationary point ``t* = sqrt((a - z_eye) / (c - c_per_m))``, so its maximum over the
+    segment is at an endpoint or at t*: exact.  A cell whose highest corner cannot beat the best
+    tangent so far (:func:`_bound_tan` at its entry distance) is skipped unevaluated.  The
+    surface at t -> 0 is the eye's ground, so the first segment starts at ``1e-6`` cell.
+
+    Returns (best tangent, its distance in metres, distance reached): the walk stops at t_end
+    or where the ray leaves the level (the caller continues from the distance reached).
+    """
+    inv = 1.0 / cell
+    u0 = (px - x0) * inv - 0.5
+    v0 = (y0 - py) * inv - 0.5
+    du = sx * inv
+    dv = -sy * inv
+    umax = ncols - 1.0
+    vmax = nrows - 1.0
+    t_end = min(t_end, _exit_distance(u0, v0, du, dv, 0.0, umax, 0.0, vmax))
+    if not t_end > 0.0:
+        return best, best_d, 0.0
+    # current cell (clamped to the last full cell at the far edges, as _bilinear does)
+    ci = min(int(u0), ncols - 2)
+    ri = min(int(v0), nrows - 2)
+    # DDA: distance to the next column / row line and between successive ones
+    if du > 1e-12:
+        tu = (ci + 1 - u0) / du
+        dtu = 1.0 / du
+        su = 1
+    elif du < -1e-12:
+        tu = (ci - u0) / du
+        dtu = -1.0 / du
+        su = -1
+    else:
+        tu = np.inf
+        dtu = np.inf
+        su = 0
+    if dv > 1e-12:
+        tv = (ri + 1 - v0) / dv
+        dtv = 1.0 / dv
+        sv = 1
+    elif dv < -1e-12:
+        tv = (ri - v0) / dv
+        dtv = -1.0 / dv
+        sv = -1
+    else:
+        tv = np.inf
+        dtv = np.inf
+        sv = 0
+    t0 = 1e-6 * cell
+    while t0 < t_end:
+        t1 = min(tu, tv, t_end)
+        if t1 > t0:
+            i00 = off + ri * ncols + ci
+            h00 = heights[i00]
+            h01 = heights[i00 + 1]
+            h10 = heights[i00 + ncols]
+            h11 = heights[i00 + ncols + 1]
+            hmax = max(max(h00, h01), max(h10, h11))
+            if _bound_tan(hmax - z_eye, t0, c_per_m) > best:
+                # z = h00 + bu fu + bv fv + e fu fv with fu = fu0 + t du, fv = fv0 + t dv
+                bu = h01 - h00
+                bv = h10 - h00
+                e = h11 - h01 - h10 + h00
+                fu0 = u0 - ci
+                fv0 = v0 - ri
+                a_rel = h00 + bu * fu0 + bv * fv0 + e * fu0 * fv0 - z_eye
+                b = bu * du + bv * dv + e * (fu0 * dv + fv0 * du)
+                c_rel = e * du * dv - c_per_m
+                f = _seg_tan(a_rel, b, c_rel, t0)
+                if f > best:
+                    best = f
+                    best_d = t0
+                f = _seg_tan(a_rel, b, c_rel, t1)
+                if f > best:
+                    best = f
+                    best_d = t1
+                if a_rel * c_rel > 0.0:
+                    ts = math.sqrt(a_rel / c_rel)
+                    if t0 < ts < t1:
+                        f = _seg_tan(a_rel, b, c_rel, ts)
+                        if f > best:
+                            best = f
+                            best_d = ts
+        if t1 >= t_end:
+            break
+        t0 = t1
+        if tu <= tv:
+            ci += su
+            tu += dtu
+        else:
+            ri += sv
+            tv += dtv
+        # crossing the last lattice line stays in the clamped last cell (t_end stops the walk)
+        ci = min(max(ci, 0), ncols - 2)
+        ri = min(max(ri, 0), nrows - 2)
+    return best, best_d, t_end
+
+
 @njit(**_NOGIL)
 def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell, suffix_max,
               blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols, blk2_size,
-              c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth, hint_d):
-    """March one ray; return (best tangent, its distance in metres), (-inf, nan) if no sample."""
+              c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth, hint_d, near_m):
+    """March one ray; return (best tangent, its distance in metres), (-inf, nan) if no sample.
+
+    Distances up to ``near_m`` on level 0 are searched exactly (:func:`near_field`), the rest is
+    sampled from there on.
+    """
     nlev = offsets.shape[0]
     best = -np.inf
     best_d = np.nan
@@ -135,6 +249,10 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
                     best = num / d
                     best_d = d
     d = d_start
+    if near_m > 0.0:
+        best, best_d, d_near = near_field(px, py, z_eye, sx, sy, heights, offsets[0], rows[0], cols[0], x0[0],
+                                          y0[0], cell[0], c_per_m, min(near_m, max_dist), best, best_d)
+        d = max(d, d_near)
     lev = 0
     while d <= max_dist:
         x = px + d * sx
@@ -220,7 +338,8 @@ def eye_height(px, py, heights, offsets, rows, cols, x0, y0, cell):
 @njit(parallel=True, **_NOGIL)
 def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols, x0, y0, cell,
                              suffix_max, blk1, blk1_off, blk1_cols, blk1_size, blk2, blk2_off, blk2_cols,
-                             blk2_size, c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth, chunk):
+                             blk2_size, c_per_m, d_start, min_step, step_per_m, max_dist, seed_growth, chunk,
+                             near_m):
     """Horizon of many positions: (elevation degrees, distance metres), each (n_pos, n_az) float32.
 
     Threads take chunks of ``chunk`` consecutive positions (neighbours on the grid) and march them
@@ -248,7 +367,7 @@ def render_positions(px, py, cam_h, sin_az, cos_az, heights, offsets, rows, cols
                 best, bd = march_ray(px[p], py[p], z_eye[q], sin_az[a], cos_az[a], heights, offsets, rows,
                                      cols, x0, y0, cell, suffix_max, blk1, blk1_off, blk1_cols, blk1_size,
                                      blk2, blk2_off, blk2_cols, blk2_size, c_per_m, d_start, min_step,
-                                     step_per_m, max_dist, seed_growth, hint[q])
+                                     step_per_m, max_dist, seed_growth, hint[q], near_m)
                 hint[q] = bd
                 if best > -np.inf:
                     el[p, a] = math.degrees(math.atan(best))

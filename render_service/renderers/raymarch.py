@@ -1,10 +1,13 @@
 """The skyline-database ray-marcher: horizon elevation by azimuth over a multi-resolution DEM.
 
 For an eye at ground height (bilinear on level 0) plus the camera height, the horizon at azimuth
-``az`` (degrees clockwise from grid north) is the maximum over samples at horizontal distance
-``d`` of ``atan2(z(d) - z_eye - d^2 (1 - k) / 2R, d)``.  Samples are taken on the finest level
-that contains them (bilinear), every ``clip(step_per_m * d, min_step_cells * cell_0, cell_L)``
-metres, so the step grows with distance but never exceeds one cell of the level sampled.
+``az`` (degrees clockwise from grid north) is the maximum over horizontal distances ``d`` of
+``atan2(z(d) - z_eye - d^2 (1 - k) / 2R, d)``.  In the near field (the first
+``near_field_cells`` cells of level 0, 25 by default) the maximum is exact: the ray is walked
+cell by cell over level 0 and the bilinear surface, a quadratic in ``d`` inside each cell, is
+maximised analytically.  Beyond, samples are taken on the finest level that contains them
+(bilinear), every ``clip(step_per_m * d, min_step_cells * cell_0, cell_L)`` metres, so the step
+grows with distance but never exceeds one cell of the level sampled.
 Negative elevations are kept.  Blocks of terrain whose maximum cannot beat the best tangent so
 far are skipped whole (exactly: the skip is conservative), and the ray stops when no remaining
 level can beat it.  Coordinates are in the terrain's projected metric CRS (metres).
@@ -28,21 +31,32 @@ from render_service.renderers.base import RenderSpec, TileResult
 log = logging.getLogger(__name__)
 
 #: Recorded in the database metadata; bump when results change.
-__version__ = "1"
+__version__ = "2"   # 2: exact near field
 RENDERER_NAME = "raymarch"
+
+
+#: Cap of the automatic near-field radius, in level-0 cells (when step_per_m is tiny or 0).
+NEAR_FIELD_MAX_CELLS = 64.0
 
 
 @dataclass(frozen=True)
 class MarchOptions:
     """Sampling of the march (defaults meet the accuracy targets in docs/renderer.md).
 
-    min_step_cells : smallest step (and first sample distance), in level-0 cells
+    near_field_cells : radius (level-0 cells) searched exactly around the eye, cell by cell
+        (see :func:`._kernels.near_field`); 0 turns it off.  None (default): out to where the
+        march's step starts to grow, ``min_step_cells / step_per_m`` cells (25 with the defaults;
+        at most NEAR_FIELD_MAX_CELLS), so that nowhere is the march's step more than
+        ``step_per_m`` of the distance (a fixed step near the eye would miss nearby crests by
+        up to ``slope change x step / 2d`` radians: degrees within a few cells)
+    min_step_cells : smallest step (and first sample distance beyond the near field), in level-0 cells
     step_per_m : step growth with distance (metres of step per metre of distance; 0.01 ~ 0.57 deg)
     block_cells : sizes (small, big) of the blocks used for empty-space skipping, in cells
     seed_growth : ratio of the sparse geometric pre-pass that seeds the best tangent (0: none)
     chunk_positions : consecutive positions a thread marches together, azimuth by azimuth
     """
 
+    near_field_cells: float | None = None
     min_step_cells: float = 0.25
     step_per_m: float = 0.01
     block_cells: tuple[int, int] = (8, 64)
@@ -163,6 +177,15 @@ def _direction_tables(spec: RenderSpec) -> tuple[np.ndarray, np.ndarray]:
     return np.sin(az), np.cos(az)   # (east, north) components: azimuth clockwise from grid north
 
 
+def near_field_cells(options: MarchOptions) -> float:
+    """Radius (level-0 cells) of the exact near field for these options (see MarchOptions)."""
+    if options.near_field_cells is not None:
+        return float(options.near_field_cells)
+    if options.step_per_m <= 0:
+        return NEAR_FIELD_MAX_CELLS
+    return min(options.min_step_cells / options.step_per_m, NEAR_FIELD_MAX_CELLS)
+
+
 def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
                      options: MarchOptions = DEFAULT_OPTIONS) -> tuple[np.ndarray, np.ndarray]:
     """Horizons at arbitrary positions (metres, terrain CRS).
@@ -177,8 +200,10 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
     py = np.ascontiguousarray(np.ravel(y_m), dtype=np.float64)
     if px.shape != py.shape:
         raise InvalidInputError("x and y must have the same number of positions")
-    if not (options.min_step_cells > 0 and options.step_per_m >= 0 and options.chunk_positions >= 1):
-        raise InvalidInputError("min_step_cells must be > 0, step_per_m >= 0 and chunk_positions >= 1")
+    if not (options.min_step_cells > 0 and options.step_per_m >= 0 and options.chunk_positions >= 1
+            and (options.near_field_cells is None or options.near_field_cells >= 0)):
+        raise InvalidInputError("min_step_cells must be > 0, step_per_m >= 0, chunk_positions >= 1 and "
+                                "near_field_cells >= 0")
     pk = _packed(terrain, options)
     sin_az, cos_az = _direction_tables(spec)
     c_per_m = (1.0 - spec.refraction_k) / (2.0 * spec.body_radius_m)
@@ -186,7 +211,8 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
     max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
     return _kernels.render_positions(px, py, float(spec.camera_height_m), sin_az, cos_az, *pk.kernel_args(),
                                      c_per_m, min_step, min_step, float(options.step_per_m), max_dist,
-                                     float(options.seed_growth), int(options.chunk_positions))
+                                     float(options.seed_growth), int(options.chunk_positions),
+                                     near_field_cells(options) * float(pk.cell[0]))
 
 
 def check_positions_inside(terrain: MultiResTerrain, x_m, y_m) -> None:

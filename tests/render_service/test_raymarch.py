@@ -16,7 +16,7 @@ from board.errors import InvalidInputError
 from board.skydb import GridSpec, plan_tiles
 from render_service.renderers import raymarch
 from render_service.renderers.base import RenderSpec, get_renderer
-from render_service.renderers.reference import brute_force_horizon_with_distance
+from render_service.renderers.reference import accurate_horizon_with_distance, brute_force_horizon_with_distance
 
 
 def analytic_terrain(fn, levels, *, center=(0.0, 0.0), radius_m=1e5) -> MultiResTerrain:
@@ -147,15 +147,93 @@ def test_single_level_matches_brute_force_reference():
     diffs, exact = [], []
     for x, y in rng.uniform(-1200, 1200, size=(6, 2)):
         _, el, _ = raymarch.horizon_at(terrain, x, y, spec)
-        _, ref, _ = brute_force_horizon_with_distance(dem, x, y, spec)
+        _, ref, _ = accurate_horizon_with_distance(dem, x, y, spec)
         diffs.append(el - ref)
-        # with a constant quarter-cell step the march samples where the reference does
+        # with a constant quarter-cell step and no exact near field the march samples where the
+        # quarter-cell reference does
         _, el_fixed, _ = raymarch.horizon_at(terrain, x, y, spec,
-                                             options=raymarch.MarchOptions(step_per_m=0.0))
-        exact.append(el_fixed - ref)
+                                             options=raymarch.MarchOptions(step_per_m=0.0, near_field_cells=0.0))
+        _, ref_q, _ = brute_force_horizon_with_distance(dem, x, y, spec)
+        exact.append(el_fixed - ref_q)
     diffs, exact = np.abs(np.concatenate(diffs)), np.abs(np.concatenate(exact))
     assert np.median(diffs) <= 0.02 and np.percentile(diffs, 99) <= 0.2
     assert np.percentile(exact, 99) <= 0.02
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+@pytest.mark.parametrize("crest_cells", [0.4, 1.3, 2.05])
+def test_near_field_ridge_matches_closed_form(crest_cells, side):
+    """A straight ridge (crest on a cell-centre column) 0.4-2 cells from the eye, on a tilted plane.
+
+    z = H - s |x - x_r| (down to a floor) + q y is piecewise linear with its kinks on lattice
+    columns, so the bilinear surface is exactly this function.  Looking across the ridge at
+    azimuth az (towards it), the ground rises along the ray at slope g = s |sin az| + q cos az up
+    to the crest at distance D = |x_r - x_e| / |sin az|, then falls: the horizon tangent is
+    g - h / D - c D, formed at D.  A quarter-cell sampling misses this by up to degrees.
+    """
+    cell, s, q, h, R = 30.0, 0.6, 0.1, 2.0, 6.371e6
+    c = 1.0 / (2 * R)
+    x_r = side * (-585.0 + 30.0 * 20)                     # a level-0 cell-centre column (n = 40)
+    depth = 4 * cell * s                                   # the ridge flanks reach the floor 4 cells out
+
+    def fn(X, Y):
+        return np.maximum(100.0 - s * np.abs(X - x_r), 100.0 - depth) + q * Y
+
+    terrain = analytic_terrain(fn, [(600, cell), (6000, 300.0)], radius_m=R)
+    xe, ye = x_r - side * crest_cells * cell, 37.0
+    spec = RenderSpec(camera_height_m=h, n_azimuth=360, body_radius_m=R)
+    az, el, dist = raymarch.horizon_at(terrain, xe, ye, spec)
+    a = np.radians(az)
+    sel = side * np.sin(a) > math.sin(math.radians(40))   # towards the ridge, not grazing it
+    D = crest_cells * cell / np.abs(np.sin(a[sel]))
+    g = s * np.abs(np.sin(a[sel])) + q * np.cos(a[sel])
+    truth = np.degrees(np.arctan(g - h / D - c * D))
+    np.testing.assert_allclose(el[sel], truth, atol=0.01)
+    np.testing.assert_allclose(dist[sel], D, rtol=1e-3)
+    # the old fixed quarter-cell march (no near field) misses the nearest ridge by far more
+    if crest_cells < 1:
+        _, el_old, _ = raymarch.horizon_at(terrain, xe, ye, spec,
+                                           options=raymarch.MarchOptions(near_field_cells=0.0))
+        assert np.max(np.abs(el_old[sel] - truth)) > 1.0
+
+
+@pytest.mark.realdem
+@pytest.mark.parametrize("name", ["earth_sthelens_1980_usgs30m.dem", "earth_oetztal_alps_srtm3.tif"])
+def test_real_dem_matches_the_accurate_reference(real_dem, name):
+    """Random positions on a real DEM (multi-resolution terrain, 2 m camera) against the brute force
+    with the fine graded step (which sees near-field crests): median <= 0.05, p99 <= 0.3 degree."""
+    from blender_addon.terrain.dem import read_dem
+    from blender_addon.terrain.multires import build_multires
+
+    path = real_dem(name)
+    dem = read_dem(path)
+    xmin, ymin, xmax, ymax = dem.bounds()
+    cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
+    half = min(xmax - xmin, ymax - ymin) / 4
+    terrain = build_multires(path, (cx, cy), grid_half_m=half)
+    spec = RenderSpec(camera_height_m=2.0, n_azimuth=360, body_radius_m=dem.body.radius_m)
+    rng = np.random.default_rng(11)
+    xs, ys = cx + rng.uniform(-half, half, 16), cy + rng.uniform(-half, half, 16)
+    el, _ = raymarch.render_positions(terrain, xs, ys, spec)
+    ref = np.stack([accurate_horizon_with_distance(dem, x, y, spec)[1] for x, y in zip(xs, ys)])
+    d = np.abs(el - ref)
+    assert np.median(d) <= 0.05 and np.percentile(d, 99) <= 0.3
+
+
+def test_accurate_reference_step_agrees_with_a_uniform_fine_step():
+    """The graded reference step (fine near the eye, coarser far) against a uniform 0.01-cell step."""
+    cell, n = 10.0, 200
+    z = _fractal(n, seed=5, amp=40.0, cell=cell)          # slopes up to ~1.7
+    x0, y0 = -n * cell / 2, n * cell / 2
+    dem = DemRaster(z, (x0, cell, 0.0, y0, 0.0, -cell), "", Body("custom", 1e6))
+    spec = RenderSpec(camera_height_m=2.0, n_azimuth=180, body_radius_m=1e6)
+    d = []
+    for x, y in np.random.default_rng(2).uniform(-600, 600, size=(4, 2)):
+        _, acc, _ = accurate_horizon_with_distance(dem, x, y, spec)
+        _, fine, _ = brute_force_horizon_with_distance(dem, x, y, spec, step_cells=0.01)
+        d.append(np.abs(acc - fine))
+    d = np.concatenate(d)
+    assert np.median(d) <= 0.005 and d.max() <= 0.1
 
 
 def test_render_tile_shapes_positions_and_contract():
