@@ -397,15 +397,22 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     rms = math.sqrt(ref.cost / n)
     status, reason = "ok", ""
     far_mass, ratio = float("nan"), float("nan")
+    heading_var_map = 0.0
     if smap is not None:
         smin = float(np.min(smap.score))
         s2c = smin / max(q.n_seen - q.n_params, 1) * infl
         # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp
         s2c = max(s2c, s2 * infl)
         r0, c0 = smap.region.row0, smap.region.col0
+        # each position's best heading: its likelihood-weighted spread about the fix widens the heading sigma
+        hmap = heading_deg(smap.shift, n=db.meta.n_azimuth, db_start_deg=db.meta.azimuth_start_deg,
+                           query_start_deg=skyline.azimuth_start_deg)
         lk = map_likelihood(smap.score, lambda r, c: g.xy(r + r0, c + c0), best_xy=(float(x), float(y)), s2=s2c,
-                            radius_m=th.ambiguity_radius_steps * step, step_m=step)
+                            radius_m=th.ambiguity_radius_steps * step, step_m=step, angle_deg=hmap,
+                            best_angle_deg=float(v["heading"]))
+        del hmap
         cov_xy = cov_xy + lk.cov_xy
+        heading_var_map = lk.angle_var
         far_mass, ratio = lk.far_mass, lk.ambiguity_ratio
     sig_x, sig_y = math.sqrt(max(cov_xy[0, 0], 0)), math.sqrt(max(cov_xy[1, 1], 0))
     if rms > th.max_rms_deg:
@@ -418,7 +425,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     elif max(sig_x, sig_y) > th.max_sigma_steps * step:
         status, reason = "ambiguous", (f"position poorly constrained (1-sigma {max(sig_x, sig_y):.1f} m "
                                        f"> {th.max_sigma_steps * step:g} m)")
-    sig_h = math.sqrt(max(var("heading"), 0))
+    sig_h = math.sqrt(max(var("heading"), 0) + heading_var_map)
     if status == "ok" and sig_h > th.max_sigma_heading_deg:
         status, reason = "ambiguous", f"heading poorly constrained (1-sigma {sig_h:.1f} deg)"
     az, _ = enu_az_el(skyline.azimuths_deg(), np.nan_to_num(skyline.elevation_deg), v["heading"], v["pitch"],

@@ -80,6 +80,7 @@ class MapLikelihood:
     far_mass: float
     best_far_score: float
     best_score: float
+    angle_var: float = 0.0
 
     @property
     def ambiguity_ratio(self) -> float:
@@ -92,12 +93,14 @@ class MapLikelihood:
 
 
 def map_likelihood(score: np.ndarray, xy, *, best_xy: tuple[float, float], s2: float, radius_m: float,
-                   step_m: float) -> MapLikelihood:
+                   step_m: float, angle_deg: np.ndarray | None = None, best_angle_deg: float = 0.0) -> MapLikelihood:
     """Likelihood weights ``exp(-(S - S_min)/(2 s2))`` over a score map (degrees^2).
 
     score : (nrows, ncols) map, inf where not scored; xy : function (rows, cols) -> (x, y) metres
     of map indices.  ``cov_xy`` is the weighted second moment of the positions about ``best_xy``
-    (the fix).  Only positions with a weight above e^-20 are converted to coordinates, and the
+    (the fix).  ``angle_deg`` (same shape as ``score``, e.g. each position's best heading) gives
+    ``angle_var``, the weighted second moment of ``angle - best_angle_deg`` (wrapped, degrees^2).
+    Only positions with a weight above e^-20 are converted to coordinates, and the
     best score farther than ``radius_m`` is found without building coordinate arrays for the
     whole map (a 7 x 7 km map at 5 m has 1.96 M positions).
     """
@@ -112,6 +115,10 @@ def map_likelihood(score: np.ndarray, xy, *, best_xy: tuple[float, float], s2: f
     cov = np.array([[w @ (dx * dx), w @ (dx * dy)], [w @ (dx * dy), w @ (dy * dy)]])
     far = np.hypot(dx, dy) > radius_m
     far_mass = float(w[far].sum())
+    angle_var = 0.0
+    if angle_deg is not None:
+        da = np.mod(angle_deg.flat[sel] - best_angle_deg + 180.0, 360.0) - 180.0
+        angle_var = float(w @ (da * da))
     # best score farther than radius_m: everything outside a box around the fix, plus the box's far corners
     x00, y00 = xy(np.array([0]), np.array([0]))
     ci = (y00[0] - best_xy[1]) / step_m  # map row of the fix (rows go south)
@@ -128,4 +135,4 @@ def map_likelihood(score: np.ndarray, xy, *, best_xy: tuple[float, float], s2: f
         out = np.hypot(bx - best_xy[0], by - best_xy[1]) > radius_m
         if out.any():
             best_far = min(best_far, float(box[out].min()))
-    return MapLikelihood(cov, far_mass, best_far, smin)
+    return MapLikelihood(cov, far_mass, best_far, smin, angle_var)
