@@ -15,7 +15,7 @@
 The machine has 2 cores shared with other jobs: times are noisy; the ratio to the brute force
 is measured in the same run.  Prints markdown tables.
 
-Usage: python -m benchmarks.bench_match [--quick] [--no-7x7] [--no-brute] [--trials N]
+Usage: python -m benchmarks.bench_match [--quick] [--no-7x7] [--no-brute] [--no-accuracy] [--only-7x7] [--trials N]
 """
 from __future__ import annotations
 
@@ -261,16 +261,18 @@ def main() -> None:
     ap.add_argument("--no-brute", action="store_true")
     ap.add_argument("--no-accuracy", action="store_true")
     ap.add_argument("--trials", type=int, default=10)
+    ap.add_argument("--only-7x7", action="store_true", help="only the 7 x 7 km lost-in-space query")
     a = ap.parse_args()
     size = 300.0 if a.quick else 1000.0
     trials = 3 if a.quick else a.trials
     _say(f"# bench_match {dt.datetime.now(dt.timezone.utc).isoformat(timespec='minutes')} "
          f"(2 shared cores: times are noisy)")
     db, horizon = _world(size, 5.0)
-    rows = speed(db, horizon, brute=not a.no_brute)
-    _say("\n| query | positions | locate (tilt model) s | locate (offset model) s | report brute force s | "
-         "ratio | fix error m | brute-force error m |")
-    _say("|---|---|---|---|---|---|---|---|")
+    rows = [] if a.only_7x7 else speed(db, horizon, brute=not a.no_brute)
+    if rows:
+        _say("\n| query | positions | locate (tilt model) s | locate (offset model) s | report brute force s | "
+             "ratio | fix error m | brute-force error m |")
+        _say("|---|---|---|---|---|---|---|---|")
     for r in rows:
         _say(f"| {r['query']} | {r['positions']:,} | {r['locate_s']:.3f} | {r['locate_offset_model_s']:.3f} | "
              f"{r.get('brute_s', float('nan')):.1f} | {r.get('ratio', float('nan')):.0f}x | {r['error_m']:.2f} | "
@@ -283,7 +285,7 @@ def main() -> None:
         _say("|---|---|---|---|---|---|---|---|")
         _say(f"| 242 deg, pitch 3 roll -2 | {r['positions']:,} | {r['locate_s']:.1f} | {r['wall_s']:.1f} | "
              f"{r['peak_rss_mb']:.0f} | {r['store_gb']:.2f} | {r['error_m']:.2f} | {r['status']} |")
-    if not a.no_accuracy:
+    if not (a.no_accuracy or a.only_7x7):
         t = accuracy(db, horizon, trials)
         for name, title in (("tilt", "Table 4 shape: full panorama, lost in space, tilt"),
                             ("partial", "Table 5 shape: partial panoramas, lost in space, tilt up to 5 deg"),
