@@ -140,8 +140,9 @@ def speed(db, horizon, *, brute: bool, repeats: int = 5) -> list[dict]:
 
 def make_7x7(db, path: Path, *, seed: int = 0) -> Path:
     """A 1401 x 1401 store from the 1 km database's tiles (rotated, perturbed copies); tile (0, 0) unchanged."""
-    from board.skydb import GridSpec, SkyDBMeta, SkyDBWriter
     from tqdm import tqdm
+
+    from board.skydb import GridSpec, SkyDBMeta, SkyDBWriter
 
     if (path / "zarr.json").is_file():
         try:

@@ -87,7 +87,10 @@ def locate_cmd(db_path: Path, sky_path: Path | None, acq_dir: Path | None, mode:
         if len(tp) != 3:
             raise InvalidInputError(f"--tilt-prior must be pitch,roll,sigma in degrees, got {tilt_prior!r}")
     db = SkyDB.open(db_path)
-    sky = Skyline.load(sky_path) if sky_path is not None else _skyline_from_acquisition(acq_dir, db.meta.azimuth_step_deg)
+    if sky_path is not None:
+        sky = Skyline.load(sky_path)
+    else:
+        sky = _skyline_from_acquisition(acq_dir, db.meta.azimuth_step_deg)
     prior_xy = _pair(prior, "--prior")
     kw = dict(mode=mode, prior_xy=prior_xy, radius_m=radius, heading_prior_deg=heading_prior,
               heading_window_deg=heading_window, tilt_prior=tp, model=model, position_sigma_m=position_sigma)

@@ -99,7 +99,6 @@ def bin_energy(c: np.ndarray, skip: int) -> np.ndarray:
 
 def bin_magnitudes(c: np.ndarray, skip: int) -> tuple[np.ndarray, np.ndarray]:
     """|X_k| for k = skip..n//2 and their Parseval multiplicities (2, or 1 for Nyquist)."""
-    n = c.shape[-1]
     _, re, im, nyq = _ccs_views(c)
     mags = np.sqrt(re[..., skip - 1:] ** 2 + im[..., skip - 1:] ** 2)
     mult = np.full(mags.shape[-1], 2.0)
@@ -243,7 +242,6 @@ def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.nd
         sc = dft_rows(s)
     else:
         s = db  # the caller centred the rows and transformed them
-    n = q.n
     if q.full:
         return _score_full(q, sc, want_b)
     # partial: quadratic term sum w r^2, then the whitened projections c = chol^T b (one inverse DFT each);

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from board.conventions import azimuth_grid_deg, rotation_enu_from_camera
+from board.conventions import azimuth_grid_deg, enu_from_az_el_deg, rotation_enu_from_camera
 from board.pose.sphere import rel_az_el_from_body, resample_periodic
-from board.conventions import enu_from_az_el_deg
 
 
 @dataclass
