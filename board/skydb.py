@@ -330,6 +330,8 @@ class SkyDB:
             done = group["tile_done"]
         except KeyError as exc:
             raise FormatError(f"{path} is corrupt: missing array {exc}; re-render it") from exc
+        except Exception as exc:  # a damaged array zarr.json surfaces as JSON/metadata errors
+            raise FormatError(f"{path} is corrupt ({type(exc).__name__}: {exc}); re-render it") from exc
         g = meta.grid
         if tuple(arr.shape) != (g.ny, g.nx, meta.n_azimuth) or str(arr.dtype) != "int16":
             raise FormatError(f"{path} is corrupt: elevation array has shape {arr.shape} / {arr.dtype}, "

@@ -88,3 +88,11 @@ def test_reader_refuses_unknown_version_and_corrupt(tmp_path):
         SkyDB.open(path)
     with pytest.raises(FormatError, match="no skyline database"):
         SkyDB.open(tmp_path / "nothing.zarr")
+
+
+def test_reader_refuses_a_damaged_array(tmp_path):
+    path = tmp_path / "db.zarr"
+    SkyDBWriter.create(path, _meta())
+    (path / "elevation" / "zarr.json").write_text("{ truncated")
+    with pytest.raises(FormatError, match="corrupt"):
+        SkyDB.open(path)
