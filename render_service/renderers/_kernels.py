@@ -95,7 +95,8 @@ def near_field(px, py, z_eye, sx, sy, heights, off, nrows, ncols, x0, y0, cell, 
     stationary point ``t* = sqrt((a - z_eye) / (c - c_per_m))``, so its maximum over the
     segment is at an endpoint or at t*: exact.  A cell whose highest corner cannot beat the best
     tangent so far (:func:`_bound_tan` at its entry distance) is skipped unevaluated.  The
-    surface at t -> 0 is the eye's ground, so the first segment starts at ``1e-6`` cell.
+    surface at t -> 0 is the eye's ground, so no segment starts before ``1e-6`` cell (an eye on a
+    lattice line going backwards starts in a cell the walk enters at t = 0).
 
     Returns (best tangent, its distance in metres, distance reached): the walk stops at t_end
     or where the ray leaves the level (the caller continues from the distance reached).
@@ -138,7 +139,8 @@ def near_field(px, py, z_eye, sx, sy, heights, off, nrows, ncols, x0, y0, cell, 
         tv = np.inf
         dtv = np.inf
         sv = 0
-    t0 = 1e-6 * cell
+    t_min = 1e-6 * cell
+    t0 = t_min
     while t0 < t_end:
         t1 = min(tu, tv, t_end)
         if t1 > t0:
@@ -175,7 +177,7 @@ def near_field(px, py, z_eye, sx, sy, heights, off, nrows, ncols, x0, y0, cell, 
                             best_d = ts
         if t1 >= t_end:
             break
-        t0 = t1
+        t0 = max(t1, t_min)
         if tu <= tv:
             ci += su
             tu += dtu

@@ -6,11 +6,12 @@ curvature drop ``d^2 (1 - k) / 2R`` as the renderer, out to the DEM's edge (or
 independent truth the ray-marcher is checked against.  Coordinates in the DEM's metric CRS.
 
 Step size and accuracy: a crest between two samples ``s`` apart at distance ``d`` is missed by
-up to about ``slope change x s / 2d`` radians, so a fixed quarter-cell step (the historical
-default) misses near-field crests badly: a slope one cell from the eye can be seen degrees too
-low (St Helens 30 m, 2 m camera: p99 0.8 deg, max 1.3 deg against a 0.01-cell step).  Accuracy
-checks must use a fine step near the eye: either ``step_cells=0.01`` uniformly (slow), or the
-graded step of :data:`ACCURATE_STEP` (:func:`accurate_horizon_with_distance`), which keeps
+up to about ``slope change x s / 2d`` radians, so a fixed quarter-cell step (the default until
+renderer v2) misses near-field crests badly: a slope one cell from the eye can be seen degrees
+too low (St Helens 30 m, 2 m camera: p99 0.8 deg, max 1.3 deg against a 0.01-cell step).
+Accuracy checks must use a fine step near the eye: either ``step_cells=0.01`` uniformly (slow),
+or the graded step of :data:`ACCURATE_STEP` (the default, also
+:func:`accurate_horizon_with_distance`), which keeps
 ``s / d`` below 5e-4 (at most ~0.015 deg for a slope change of 1) from 0.001 cell out to where
 a quarter cell is fine enough (500 cells) and is about ten times faster than a uniform 0.01-cell
 step on a 1000-cell ray.
@@ -83,15 +84,19 @@ def _brute(a, x0, y0, cell, px, py, cam_h, sin_az, cos_az, c_per_m, step, max_di
 
 
 def brute_force_horizon_with_distance(dem: DemRaster, x: float, y: float, spec: RenderSpec, *,
-                                      step_cells: float = 0.25, step_growth: float = 0.0,
+                                      step_cells: float | None = None, step_growth: float = 0.0,
                                       max_step_cells: float | None = None
                                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(azimuth_deg, elevation_deg, distance_m), each (n_azimuth,), at (x, y) metres in the DEM's CRS.
 
-    The step is ``step_cells`` cells, or with ``step_growth > 0`` grows as ``step_growth * d``
-    from there up to ``max_step_cells`` (default the larger of ``step_cells`` and a quarter
-    cell).  The default uniform quarter-cell step misses near-field crests (module docstring).
+    By default (``step_cells=None``) the graded :data:`ACCURATE_STEP`.  Otherwise the step is
+    ``step_cells`` cells, or with ``step_growth > 0`` grows as ``step_growth * d`` from there up
+    to ``max_step_cells`` (default the larger of ``step_cells`` and a quarter cell).  A uniform
+    quarter-cell step misses near-field crests by up to degrees (module docstring).
     """
+    if step_cells is None:
+        step_cells, step_growth, max_step_cells = (ACCURATE_STEP["step_cells"], ACCURATE_STEP["step_growth"],
+                                                   ACCURATE_STEP["max_step_cells"])
     gt = dem.geotransform
     if gt[2] != 0 or gt[4] != 0 or gt[5] >= 0 or abs(abs(gt[1]) - abs(gt[5])) > 1e-6 * abs(gt[1]):
         raise InvalidInputError("the brute-force reference needs a north-up DEM with square cells")
@@ -123,12 +128,12 @@ def accurate_horizon_with_distance(dem: DemRaster, x: float, y: float,
 
 
 def brute_force_horizon(dem: DemRaster, x: float, y: float, spec: RenderSpec, *,
-                        step_cells: float = 0.25, step_growth: float = 0.0,
+                        step_cells: float | None = None, step_growth: float = 0.0,
                         max_step_cells: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(azimuth_deg, elevation_deg), each (n_azimuth,), at (x, y) metres in the DEM's CRS.
 
-    The default quarter-cell step misses near-field crests: for accuracy checks use
-    ``step_cells=0.01`` or :data:`ACCURATE_STEP` (see the module docstring).
+    Steps as in :func:`brute_force_horizon_with_distance` (default: the graded, accurate
+    :data:`ACCURATE_STEP`; a uniform quarter-cell step misses near-field crests).
     """
     az, el, _ = brute_force_horizon_with_distance(dem, x, y, spec, step_cells=step_cells,
                                                   step_growth=step_growth, max_step_cells=max_step_cells)

@@ -70,8 +70,8 @@ def test_render_tile_matches_brute_force_and_ray_marcher_on_a_real_dem(real_dem)
     """St Helens (30 m cells, one level): Blender at 0.1 deg/px vs the brute-force reference (bilinear,
     0.3 m steps: fine enough for horizons a few metres away) and the ray-marcher.
 
-    Only the median is held against the ray-marcher: its first samples are 0.25 cell (7.5 m) apart,
-    so it misses horizons formed within a cell of the camera (degrees off against the reference).
+    The ray-marcher (renderer v2) searches its near field exactly, so it is held to the same
+    tolerance as the reference.
     """
     pytest.importorskip("bpy")
     from blender_addon.skyline_renderer import render_tile
@@ -98,7 +98,7 @@ def test_render_tile_matches_brute_force_and_ray_marcher_on_a_real_dem(real_dem)
     d_ref = np.abs(bl - bf).ravel()
     assert np.median(d_ref) <= 0.05 and np.percentile(d_ref, 99) <= 0.25
     d_rm = np.abs(bl - rm).ravel()
-    assert np.median(d_rm) <= 0.05
+    assert np.median(d_rm) <= 0.05 and np.percentile(d_rm, 99) <= 0.25
 
 
 @pytest.mark.blender
