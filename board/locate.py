@@ -171,18 +171,21 @@ def _coarse_init(db: SkyDB, q, row: int, col: int, allowed, level: tuple[float, 
 
 
 def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt_prior, noise_deg: float,
-                 max_moves: int = 6) -> tuple[Refined, LocalDB]:
+                 region: Region, max_moves: int = 6) -> tuple[Refined, LocalDB]:
     """Refine from node (r, c) within +-1.5 nodes; while the optimum sits on that box's edge, move the box.
 
     Lets the refinement follow a long, flat valley of the score instead of stopping at the edge
-    of the first window.  Positions stay inside the grid.
+    of the first window.  Positions stay inside the search region's bounding box (plus half a node).
     """
+    lo_r, hi_r = region.row0 - 0.5, region.row0 + region.nrows - 0.5
+    lo_c, hi_c = region.col0 - 0.5, region.col0 + region.ncols - 0.5
     g = db.grid
+    lo_r, hi_r, lo_c, hi_c = max(lo_r, 0), min(hi_r, g.ny - 1), max(lo_c, 0), min(hi_c, g.nx - 1)
     seen_nodes = set()
     for _ in range(max_moves):
         seen_nodes.add((r, c))
         local = _local_db(db, r, c)
-        bounds = {"row": (max(r - 1.5, 0), min(r + 1.5, g.ny - 1)), "col": (max(c - 1.5, 0), min(c + 1.5, g.nx - 1))}
+        bounds = {"row": (max(r - 1.5, lo_r), min(r + 1.5, hi_r)), "col": (max(c - 1.5, lo_c), min(c + 1.5, hi_c))}
         ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
         v = ref.values
         at_edge = any(min(v[k] - lo, hi - v[k]) < 1e-6 for k, (lo, hi) in bounds.items())
@@ -310,7 +313,8 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
                 break
             init = _coarse_init(db, q, r, c, allowed, level, q0)
             ref, local = _walk_refine(db, r, c, init, theta, el, free=PARAMS if model == "tilt" else
-                                      ("row", "col", "heading"), tilt_prior=tilt_prior, noise_deg=noise)
+                                      ("row", "col", "heading"), tilt_prior=tilt_prior, noise_deg=noise,
+                                      region=smap.region)
             if best is None or ref.cost < best[0].cost:
                 best = (ref, local)
         return best
@@ -328,7 +332,7 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
             q, smap, ref, local = q2, smap2, ref2, local2
         elif smap2 is not None:
             smap = smap2
-    return _make_fix(db, skyline, q, smap, ref, local, mode=mode, th=th, t0=t0)
+    return _make_fix(db, skyline, q, smap, ref, local, mode=mode, th=th, t0=t0, region=region)
 
 
 #: bilinear interpolation error at mid-cell relative to the error of predicting a node from its two
@@ -367,7 +371,7 @@ def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.n
 
 
 def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refined, local: LocalDB, *, mode: str,
-              th: Thresholds, t0: float) -> Fix:
+              th: Thresholds, t0: float, region: Region) -> Fix:
     g = db.grid
     step = abs(g.geotransform[1])
     v = ref.values
@@ -426,6 +430,14 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         status, reason = "ambiguous", (f"position poorly constrained (1-sigma {max(sig_x, sig_y):.1f} m "
                                        f"> {th.max_sigma_steps * step:g} m)")
     sig_h = math.sqrt(max(var("heading"), 0) + heading_var_map)
+    if status == "ok" and "row" in ref.free:
+        # an optimum pinned to the edge of the searched area says the rover is probably beyond it
+        lim = {"row": (max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)),
+               "col": (max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1))}
+        if any(min(v[k] - lo, hi - v[k]) < 1e-3 for k, (lo, hi) in lim.items()):
+            what = "database grid" if mode == "lost" else "search window"
+            status, reason = "ambiguous", (f"the best match lies on the edge of the {what}: the rover is probably "
+                                           "outside it" + (" (widen --radius)" if mode != "lost" else ""))
     if status == "ok" and sig_h > th.max_sigma_heading_deg:
         status, reason = "ambiguous", f"heading poorly constrained (1-sigma {sig_h:.1f} deg)"
     az, _ = enu_az_el(skyline.azimuths_deg(), np.nan_to_num(skyline.elevation_deg), v["heading"], v["pitch"],

@@ -193,3 +193,15 @@ def test_heading_mode_with_an_exact_position(raymarch_world):
         fix = locate(w.db, sky, mode="heading", prior_xy=(x, y), heading_prior_deg=h - 6.0, position_sigma_m=0)
         assert _err(fix, x, y, h) == (pytest.approx(0.0, abs=1e-9), pytest.approx(0.0, abs=0.5))
         assert math.isnan(fix.sigma_x_m) and fix.to_json_dict()["sigma_x_m"] is None
+
+
+def test_window_that_misses_the_rover_is_not_ok(mountain_world):
+    """A window 60 m from the rover: the best match sits on the window's edge and says so."""
+    w = mountain_world
+    rng = np.random.default_rng(23)
+    g = w.db.grid
+    x, y = g.xy(g.ny // 2, g.nx // 2)
+    sky = w.query(x, y, heading=40.0, noise=0.03, rng=rng)
+    fix = locate(w.db, sky, mode="window", prior_xy=(x + 60.0, y + 10.0), radius_m=12.0)
+    assert fix.status != "ok" and "edge of the search window" in fix.reason
+    assert locate(w.db, sky, mode="window", prior_xy=(x + 6.0, y + 1.0), radius_m=12.0).status == "ok"
