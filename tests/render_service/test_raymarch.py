@@ -200,6 +200,25 @@ def test_near_field_ridge_matches_closed_form(crest_cells, side):
         assert np.max(np.abs(el_old[sel] - truth)) > 1.0
 
 
+def test_eyes_on_the_lattice_match_the_accurate_reference():
+    """Eyes exactly on cell centres and lattice lines (grid positions usually are): rays start on a
+    cell boundary, and those going backwards enter their first cell at distance 0."""
+    cell, n = 10.0, 200
+    z = _fractal(n, seed=7, amp=40.0, cell=cell)
+    x0, y0 = -n * cell / 2, n * cell / 2
+    terrain = MultiResTerrain([TerrainLevel(z, x0, y0, cell)], "", Body("custom", 1e6), (0.0, 0.0))
+    dem = DemRaster(z, (x0, cell, 0.0, y0, 0.0, -cell), "", Body("custom", 1e6))
+    spec = RenderSpec(camera_height_m=1.0, n_azimuth=360, body_radius_m=1e6)
+    d = []
+    for x, y in [(5.0, 5.0), (-95.0, 305.0), (5.0, 7.3), (-41.7, 45.0)]:   # centres, a column, a row
+        _, el, dist = raymarch.horizon_at(terrain, x, y, spec)
+        _, ref, _ = accurate_horizon_with_distance(dem, x, y, spec)
+        assert np.all(dist > 0)
+        d.append(np.abs(el - ref))
+    d = np.concatenate(d)
+    assert np.percentile(d, 99) <= 0.1 and d.max() <= 0.3
+
+
 @pytest.mark.realdem
 @pytest.mark.parametrize("name", ["earth_sthelens_1980_usgs30m.dem", "earth_oetztal_alps_srtm3.tif"])
 def test_real_dem_matches_the_accurate_reference(real_dem, name):
