@@ -14,7 +14,8 @@ block on each axis, since bilinear interpolation inside the block reads the next
 no sample inside the block can be higher.
 
 Everything is compared as tangents ``(z - z_eye - c d^2) / d`` with ``c = (1 - k) / 2R`` and the
-arc tangent is taken once per ray.
+arc tangent is taken once per ray.  Near the eye :func:`near_field` finds the exact maximum over
+level 0 cell by cell (no sampling); beyond it :func:`march_ray` samples the ray.
 """
 from __future__ import annotations
 
