@@ -189,7 +189,7 @@ def prepare_query(elevation_deg: np.ndarray, *, azimuth_start_deg: float = 0.0, 
     gram = gram + reg
     if np.linalg.cond(gram) > 1e12:
         raise InvalidInputError("the seen part of the query skyline is too short to separate offset and tilt; "
-                                "use --tilt none or give a wider panorama")
+                                "use --model offset (or an IMU --tilt-prior) or give a wider panorama")
     minv = np.linalg.inv(gram)
     minv = (minv + minv.T) / 2.0
     chol = np.linalg.cholesky(minv)
