@@ -7,25 +7,11 @@ from pathlib import Path
 
 import click
 
+from blender_addon.terrain.crs import crs_name
+from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-def _parse_xy(value: str, name: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise InvalidInputError(f"{name} must be X,Y (two numbers separated by a comma), got {value!r}") from None
-    return x, y
-
-
-def _crs_name(wkt: str) -> str:
-    from osgeo import osr
-
-    srs = osr.SpatialReference()
-    srs.ImportFromWkt(wkt)
-    return srs.GetName() or "unnamed CRS"
 
 
 @click.group("dem")
@@ -51,7 +37,7 @@ def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str
     b = info.bounds
     click.echo(
         f"wrote {out}: {preset} seed {seed}, {info.size[0]} x {info.size[1]} cells at {info.cell_m:g} m, "
-        f"x {b[0]:g}..{b[2]:g}, y {b[1]:g}..{b[3]:g} m in CRS {_crs_name(info.crs_wkt)!r} "
+        f"x {b[0]:g}..{b[2]:g}, y {b[1]:g}..{b[3]:g} m in CRS {crs_name(info.crs_wkt)!r} "
         f"(body {info.body.name}, R = {info.body.radius_m:.0f} m)"
     )
     if preview:
@@ -77,7 +63,7 @@ def info_cmd(dem: str, body: str | None, assume_metric: bool, as_json: bool) -> 
     click.echo(f"{info.path} ({info.driver}, {info.dtype})")
     click.echo(f"  body        {info.body.name} (R = {info.body.radius_m:.0f} m)")
     click.echo(f"  source CRS  {'geographic (degrees), reprojected' if info.is_geographic else 'projected, metres'}")
-    click.echo(f"  working CRS {_crs_name(info.crs_wkt)}")
+    click.echo(f"  working CRS {crs_name(info.crs_wkt)}")
     click.echo(f"  grid        {info.size[0]} x {info.size[1]} cells of {info.cell_m:g} m")
     click.echo(f"  bounds      x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m")
     click.echo(f"  nodata      ~{info.nodata_fraction:.2%}")
@@ -104,7 +90,7 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
     if grid_size < 0:
         raise InvalidInputError(f"--grid-size must be >= 0 m, got {grid_size}")
     path = resolve_dem(dem)
-    cx, cy = _parse_xy(center, "--center")
+    cx, cy = parse_xy(center, "--center")
     site = to_metric_xy(cx, cy, dem_path=path, crs=crs, body=body, assume_metric=assume_metric)
     terrain = build_multires(
         path, site, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
@@ -114,7 +100,7 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
 
     png = plot_multires(terrain, Path(out_dir) / "levels.png")
     click.echo(f"terrain for {path} around ({site[0]:.2f}, {site[1]:.2f}) m "
-               f"in CRS {_crs_name(terrain.crs_wkt)!r} (body {terrain.body.name}) -> {out_dir}")
+               f"in CRS {crs_name(terrain.crs_wkt)!r} (body {terrain.body.name}) -> {out_dir}")
     click.echo("| level | cell (m) | cells | x range (m) | y range (m) | used beyond (m) |")
     click.echo("|---|---|---|---|---|---|")
     for k, (lvl, inner) in enumerate(zip(terrain.levels, terrain.meta["inner_distance_m"])):

@@ -9,17 +9,10 @@ from pathlib import Path
 
 import click
 
+from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-def _parse_xy(value: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise InvalidInputError(f"--at must be X,Y (two numbers separated by a comma), got {value!r}") from None
-    return x, y
 
 
 @click.group("sim")
@@ -65,7 +58,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         raise InvalidInputError(f"--height must be >= 0 m, got {height_m}")
     with tqdm(total=3, desc="sim panorama", unit="step", disable=None) as bar:
         path = resolve_dem(dem)
-        x, y = to_metric_xy(*_parse_xy(at), dem_path=path, crs=crs, body=body)
+        x, y = to_metric_xy(*parse_xy(at), dem_path=path, crs=crs, body=body)
         terrain = build_multires(path, (x, y), grid_half_m=max(50.0, 4 * height_m), max_radius_m=radius_m, body=body)
         bar.update(1)
         from blender_addon.scene import build_terrain, reset_scene

@@ -10,17 +10,10 @@ from pathlib import Path
 
 import click
 
+from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-def _parse_xy(value: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise InvalidInputError(f"--at must be X,Y (two numbers separated by a comma), got {value!r}") from None
-    return x, y
 
 
 @click.command("acquire")
@@ -65,7 +58,7 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
     plan = plan_frames(frames, arc_deg, cam.hfov_deg, tilt_deg=tilt_deg)
     deg = get_degradation(preset)
     path = resolve_dem(dem)
-    x, y = to_metric_xy(*_parse_xy(at), dem_path=path, crs=crs, body=body)
+    x, y = to_metric_xy(*parse_xy(at), dem_path=path, crs=crs, body=body)
     rock_r = deg.rocks.radius_m if deg.rocks.density_per_m2 > 0 else 0.0
     sim = Simulator(path, (x, y), grid_half_m=max(50.0, rock_r + 20.0), max_radius_m=radius_m, body=body)
     sim.dem_spec = str(dem)

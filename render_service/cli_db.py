@@ -12,29 +12,11 @@ import math
 
 import click
 
+from blender_addon.terrain.crs import crs_name
+from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-def _parse_xy(value: str, name: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise InvalidInputError(f"{name} must be X,Y (two numbers separated by a comma), got {value!r}") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise InvalidInputError(f"{name} must be finite numbers, got {value!r}")
-    return x, y
-
-
-def _crs_name(wkt: str) -> str:
-    from osgeo import osr  # noqa: PLC0415
-
-    if not wkt:
-        return "unknown CRS"
-    srs = osr.SpatialReference()
-    srs.ImportFromWkt(wkt)
-    return srs.GetName() or "unnamed CRS"
 
 
 def _spec(height: float, azimuths: int, refraction: float, max_distance: float | None):
@@ -56,7 +38,7 @@ def _site(dem: str, value: str, name: str, crs: str | None, body: str | None):
     from blender_addon.terrain.dem import resolve_dem, to_metric_xy  # noqa: PLC0415
 
     path = resolve_dem(dem)
-    x, y = _parse_xy(value, name)
+    x, y = parse_xy(value, name)
     xm, ym = to_metric_xy(x, y, dem_path=path, crs=crs, body=body)
     return path, (x, y), (xm, ym)
 
@@ -115,7 +97,7 @@ def render_cmd(dem, height, azimuths, crs, body, refraction, max_distance, cente
     s = db.summary()
     click.echo(f"wrote {out}: {s['grid']['nx']} x {s['grid']['ny']} positions x {s['n_azimuth']} azimuths, "
                f"{s['size_bytes'] / 1e6:.1f} MB, centre ({site[0]:.2f}, {site[1]:.2f}) m in CRS "
-               f"{_crs_name(s['crs_wkt'])!r}, renderer {s['renderer']} v{s['renderer_version']}")
+               f"{crs_name(s['crs_wkt'])!r}, renderer {s['renderer']} v{s['renderer_version']}")
 
 
 @db_group.command("info")
@@ -126,7 +108,7 @@ def info_cmd(store: str, as_json: bool) -> None:
     from board.skydb import SkyDB  # noqa: PLC0415
 
     s = SkyDB.open(store).summary()
-    s["crs_name"] = _crs_name(s["crs_wkt"])
+    s["crs_name"] = crs_name(s["crs_wkt"])
     if as_json:
         click.echo(json.dumps(s, indent=2))
         return
@@ -162,7 +144,7 @@ def horizon_cmd(dem, height, azimuths, crs, body, refraction, max_distance, at, 
         "azimuth_deg": [round(float(a), 6) for a in az],
         "elevation_deg": [round(float(e), 4) for e in el],
         "distance_m": [None if not math.isfinite(d) else round(float(d), 2) for d in dist],
-        "x": x, "y": y, "crs": crs_wkt, "crs_name": _crs_name(crs_wkt),
+        "x": x, "y": y, "crs": crs_wkt, "crs_name": crs_name(crs_wkt),
         "input_xy": list(given), "input_crs": crs or "the DEM's own CRS",
         "camera_height_m": height, "body_radius_m": used.body_radius_m, "refraction_k": refraction,
         "azimuth_convention": "degrees clockwise from grid north; elevation in degrees above the eye's horizontal",

@@ -153,3 +153,12 @@ def geographic_cell_m(srs: osr.SpatialReference, lat_deg: float, dlon_deg: float
     n = a / w
     m = a * (1.0 - e2) / w**3
     return n * math.cos(phi) * math.radians(abs(dlon_deg)), m * math.radians(abs(dlat_deg))
+
+
+def crs_name(wkt: str) -> str:
+    """Human-readable name of a CRS given as WKT ("unknown CRS" when empty)."""
+    if not wkt:
+        return "unknown CRS"
+    srs = osr.SpatialReference()
+    srs.ImportFromWkt(wkt)
+    return srs.GetName() or "unnamed CRS"

@@ -60,3 +60,13 @@ def test_bodies_and_refusals():
         C.body_from_name("pluto-ish")
     with pytest.raises(InvalidInputError, match="implausible"):
         C.body_from_name(5.0)
+
+
+def test_parse_xy_names_the_option():
+    from board.cliargs import parse_xy
+
+    assert parse_xy("1.5,-2", "--center") == (1.5, -2.0)
+    with pytest.raises(InvalidInputError, match="--center must be X,Y"):
+        parse_xy("1.5", "--center")
+    with pytest.raises(InvalidInputError, match="finite"):
+        parse_xy("nan,2", "--at")
