@@ -1,13 +1,16 @@
 """Shared pytest fixtures: the real DEMs in ../shared/data/dems and a sandboxed Blender config."""
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
 import pytest
 
 _TMP = Path(tempfile.mkdtemp(prefix="skyloc-tests-"))
+atexit.register(shutil.rmtree, _TMP, ignore_errors=True)
 # Blender writes user config and caches under ~/.config: keep tests hermetic.
 os.environ.setdefault("BLENDER_USER_RESOURCES", str(_TMP / "blender"))
 os.environ.setdefault("XDG_CACHE_HOME", str(_TMP / "xdg"))
