@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import math
 import os
 import resource
 import shutil
@@ -31,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from blender_addon.terrain.dem import read_dem, resolve_dem
-from blender_addon.terrain.multires import build_multires
 from board.skydb import GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, plan_tiles
 from render_service import dbrender
 from render_service.renderers import raymarch

@@ -14,7 +14,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
 from blender_addon.terrain.dem import read_dem  # noqa: E402
 from blender_addon.terrain.multires import build_multires  # noqa: E402
