@@ -18,16 +18,20 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from board.errors import InvalidInputError, NoDataError
-from board.match.fft_score import QueryModel, dft_rows, lower_bound_full, score_block
+from board.match.fft_score import (QueryModel, approx_scores_f32, dft_rows, f32_error_bound, lower_bound_full,
+                                   score_block)
 from board.skydb import GridSpec, SkyDB, Tile
 
 log = logging.getLogger(__name__)
 
 #: positions are scored in blocks of at most this many skylines (bounds the working memory)
 BLOCK = 1024
+#: partial panoramas: at most this many surviving skylines wait for exact scoring (bounds the memory)
+HOLD = 4 * BLOCK
 #: a database skyline with more missing samples than this fraction is excluded from the search
 MAX_MISSING_FRACTION = 0.1
 
@@ -140,57 +144,129 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             raise InvalidInputError("no heading is allowed by the heading window")
         penalty = np.where(allowed_shifts, 0.0, np.inf)
     use_prune = prune and q.full  # the bound holds for every heading, so also under a heading window
+    # partial panoramas: float32 scores minus their error bound are the lower bounds
+    use_f32 = prune and not q.full
+    penalty32 = None if penalty is None else penalty.astype(np.float32)
+    ones_n = np.full(q.n, 1.0 / q.n)
     best = np.inf
     tiles = _tiles_in(db, region)
 
-    def read(t: Tile) -> np.ndarray:
+    def load(t: Tile):
+        """Read one tile (clipped to the region) as float64 rows and their region offsets, excluded rows dropped."""
         r0, r1 = max(t.row0, region.row0), min(t.row0 + t.nrows, region.row0 + region.nrows)
         c0, c1 = max(t.col0, region.col0), min(t.col0 + t.ncols, region.col0 + region.ncols)
-        return db.read_tile(Tile(t.ti, t.tj, r0, c0, r1 - r0, c1 - c0))
-
-    # the next tile is read (and decompressed) in a thread while this one is scored: two tiles in memory
-    pool = ThreadPoolExecutor(max_workers=1)
-    pending = pool.submit(read, tiles[0]) if tiles else None
-    for it, t in enumerate(tiles):
-        r0, r1 = max(t.row0, region.row0), min(t.row0 + t.nrows, region.row0 + region.nrows)
-        c0, c1 = max(t.col0, region.col0), min(t.col0 + t.ncols, region.col0 + region.ncols)
-        el32 = pending.result()
-        pending = pool.submit(read, tiles[it + 1]) if it + 1 < len(tiles) else None
-        el = el32.reshape(-1, q.n).astype(np.float64)
-        del el32
+        el = db.read_tile(Tile(t.ti, t.tj, r0, c0, r1 - r0, c1 - c0)).reshape(-1, q.n).astype(np.float64)
         oi, oj = np.mgrid[r0 - region.row0:r1 - region.row0, c0 - region.col0:c1 - region.col0]
         oi, oj = oi.ravel(), oj.ravel()
-        keep = np.ones(el.shape[0], bool) if region.mask is None else region.mask[oi, oj]
-        fill_missing(el)
-        keep &= np.isfinite(el).all(axis=1)
-        el, oi, oj = el[keep], oi[keep], oj[keep]
+        keep = None if region.mask is None else region.mask[oi, oj]
+        if not cv2.checkRange(el)[0]:  # some sample is NaN (missing): fill or exclude its row
+            fill_missing(el)
+            ok = np.isfinite(el).all(axis=1)
+            keep = ok if keep is None else keep & ok
+        if keep is not None and not keep.all():
+            el, oi, oj = el[keep], oi[keep], oj[keep]
+        return el, oi, oj
+
+    # the next tile is read, decompressed and converted in a thread while this one is scored
+    pool = ThreadPoolExecutor(max_workers=1)
+    pending = pool.submit(load, tiles[0]) if tiles else None
+    def exact(s: np.ndarray, sc: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> float:
+        """Exact scores of centred rows ``s`` (spectra ``sc``) into ``out``; returns their best score."""
+        scores = score_block(q, s, want_b=False, sc=sc).scores
+        if penalty is not None:
+            scores = scores + penalty
+        a = np.argmin(scores, axis=1)
+        smin = scores[np.arange(a.size), a]
+        out.score[bi, bj] = smin
+        out.shift[bi, bj] = a
+        out.exact[bi, bj] = True
+        out.n_scored += a.size
+        return float(smin.min())
+
+    def prune_rows(lb: np.ndarray, bi: np.ndarray, bj: np.ndarray, best: float) -> np.ndarray:
+        """Store the bound of the rows that cannot come within ``prune_factor`` of ``best``; True = keep."""
+        todo = lb <= prune_factor * best
+        pr = ~todo
+        out.score[bi[pr], bj[pr]] = lb[pr]
+        return todo
+
+    # partial panoramas: rows that survive their float32 bound wait in ``held`` (at most HOLD rows)
+    # and are scored exactly at the end, against the final best score, which prunes most of them.
+    # On overflow the rows with the largest bounds are dropped and marked ``deferred``: if they
+    # still survive at the end, their tiles are read again.
+    held: list[tuple[np.ndarray, ...]] = []
+    deferred = np.zeros(shape, bool)
+
+    def hold(s: np.ndarray, bi: np.ndarray, bj: np.ndarray, lb: np.ndarray, best: float) -> None:
+        held.append((s, bi, bj, lb))
+        for h, (hs, hi, hj, hl) in enumerate(held):  # the best may have improved
+            keep = prune_rows(hl, hi, hj, best)
+            if not keep.all():
+                held[h] = (hs[keep], hi[keep], hj[keep], hl[keep])
+        if sum(h[0].shape[0] for h in held) > HOLD:
+            hs, hi, hj, hl = (np.concatenate(x) for x in zip(*held))
+            order = np.argsort(hl, kind="stable")
+            keep, drop = order[:HOLD // 2], order[HOLD // 2:]
+            out.score[hi[drop], hj[drop]] = hl[drop]
+            deferred[hi[drop], hj[drop]] = True
+            held[:] = [(hs[keep], hi[keep], hj[keep], hl[keep])]
+
+    for it, t in enumerate(tiles):
+        el, oi, oj = pending.result()
+        pending = pool.submit(load, tiles[it + 1]) if it + 1 < len(tiles) else None
         for b0 in range(0, el.shape[0], BLOCK):
             s = el[b0:b0 + BLOCK]
             bi, bj = oi[b0:b0 + BLOCK], oj[b0:b0 + BLOCK]
-            s -= s.mean(axis=1, keepdims=True)  # scores are offset-invariant: centre (in place)
+            if use_f32:
+                s -= (s @ ones_n)[:, None]  # scores are offset-invariant: centre the rows (in place)
+                # float32 scores minus their error bound: a lower bound of every row's exact best score
+                s32 = s.astype(np.float32)
+                approx = approx_scores_f32(q, s32)
+                if penalty32 is not None:
+                    approx += penalty32
+                amin = approx.min(axis=1).astype(np.float64)
+                lb = np.maximum(amin - f32_error_bound(q, s32), 0.0)
+                k = int(np.argmin(amin))  # the block's likely best row, scored exactly at once
+                best = min(best, exact(s[k:k + 1], dft_rows(s[k:k + 1]), bi[k:k + 1], bj[k:k + 1]))
+                lb[k] = -np.inf  # row k is exact: neither pruned nor held
+                todo = prune_rows(lb, bi, bj, best)
+                todo[k] = False
+                if todo.any():
+                    hold(s[todo], bi[todo], bj[todo], lb[todo], best)
+                continue
+            # scores are offset-invariant: centre the rows (in place), the mean taken from DFT bin 0
             sc = dft_rows(s)
+            s -= (sc[:, 0] / q.n)[:, None]
+            sc[:, 0] = 0.0
             if use_prune and np.isfinite(best):
-                lb = lower_bound_full(q, sc)
-                todo = lb <= prune_factor * best
-                pr = ~todo
-                out.score[bi[pr], bj[pr]] = lb[pr]
-                out.n_pruned += int(pr.sum())
+                todo = prune_rows(lower_bound_full(q, sc), bi, bj, best)
                 if not todo.any():
                     continue
                 s, sc, bi, bj = s[todo], sc[todo], bi[todo], bj[todo]
-            scores = score_block(q, s, want_b=False, sc=sc).scores
-            if penalty is not None:
-                scores = scores + penalty
-            a = np.argmin(scores, axis=1)
-            smin = scores[np.arange(a.size), a]
-            out.score[bi, bj] = smin
-            out.shift[bi, bj] = a
-            out.exact[bi, bj] = True
-            out.n_scored += a.size
-            best = min(best, float(smin.min()))
+            best = min(best, exact(s, sc, bi, bj))
         if progress is not None:
             progress(it + 1, len(tiles))
     pool.shutdown()
+    if held:
+        s, bi, bj, lb = (np.concatenate(x) for x in zip(*held))
+        todo = prune_rows(lb, bi, bj, best)
+        if todo.any():
+            s, bi, bj = s[todo], bi[todo], bj[todo]
+            best = min(best, exact(s, dft_rows(s), bi, bj))
+    again = deferred & (out.score <= prune_factor * best)
+    if again.any():
+        log.info("scoring %d deferred positions exactly (tiles read again)", int(again.sum()))
+        for t in tiles:
+            r0, c0 = max(t.row0 - region.row0, 0), max(t.col0 - region.col0, 0)
+            if not again[r0:t.row0 + t.nrows - region.row0, c0:t.col0 + t.ncols - region.col0].any():
+                continue
+            el, oi, oj = load(t)
+            sel = again[oi, oj]
+            if sel.any():
+                s = el[sel]
+                s -= (s @ ones_n)[:, None]
+                exact(s, dft_rows(s), oi[sel], oj[sel])
+    out.n_pruned = int((np.isfinite(out.score) & ~out.exact).sum())
     if not np.isfinite(out.score).any():
         raise NoDataError("no database skyline in the search area could be scored (missing tiles or "
                           "positions?): check that the database render is complete (`skyloc db info`)")

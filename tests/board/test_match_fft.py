@@ -78,3 +78,26 @@ def test_parseval_lower_bound_holds_for_every_heading(model):
     scores = score_block(q, db).scores
     assert np.all(lb <= scores.min(axis=1) * (1 + 1e-9) + 1e-9)
     assert np.all(lb > 0)
+
+
+@pytest.mark.parametrize("model", ["offset", "tilt"])
+@pytest.mark.parametrize("seen_deg", [242, 65])
+def test_float32_scores_within_their_error_bound(model, seen_deg):
+    """approx_scores_f32 differs from the float64 scores by less than f32_error_bound, row by row."""
+    from board.match.fft_score import approx_scores_f32, f32_error_bound
+
+    rng = np.random.default_rng(seen_deg)
+    n = 360
+    # rough skylines of very different amplitudes (0.1 to 30 degrees), plus one constant row
+    db = rng.normal(0, 1, size=(60, n)).cumsum(axis=1) * rng.uniform(0.01, 3.0, size=(60, 1))
+    db[0] = 4.0
+    db -= db.mean(axis=1, keepdims=True)
+    e = np.roll(db[7], -40) + rng.normal(0, 0.05, n) + 3.0
+    e[np.arange(seen_deg, n)] = np.nan
+    for ridge in (0.0, 2.0):
+        q = prepare_query(e, model=model, ridge=ridge, azimuth_start_deg=-30.0)
+        exact = score_block(q, db, want_b=False).scores
+        approx = approx_scores_f32(q, db.astype(np.float32))
+        bound = f32_error_bound(q, db)
+        assert np.all(np.abs(approx - exact) <= bound[:, None])
+        np.testing.assert_allclose(bound, f32_error_bound(q, db.astype(np.float32)), rtol=1e-5)

@@ -92,3 +92,41 @@ def test_search_reads_the_database_tile_by_tile(mountain_world):
         del db.read_tile
     assert len(sizes) == len(db.tiles)
     assert max(sizes) <= db.meta.tile_size ** 2
+
+
+@pytest.mark.parametrize("model,arc,hold,window", [("offset", 242, None, False), ("tilt", 242, 8, False),
+                                                    ("tilt", 120, None, True), ("offset", 65, 8, True)])
+def test_partial_pruning_returns_the_exhaustive_argmin(mountain_world, monkeypatch, model, arc, hold, window):
+    """Partial panoramas: float32 lower bounds prune exactly (same argmin, exact within the factor);
+    ``hold`` forces the overflow path that reads tiles again, ``window`` a heading window."""
+    import board.match.search as search_mod
+
+    if hold is not None:
+        monkeypatch.setattr(search_mod, "HOLD", hold)
+    w = mountain_world
+    rng = np.random.default_rng(arc + (hold or 0))
+    x, y = w.random_xy(rng)
+    pitch = rng.uniform(-3, 3) if model == "tilt" else 0.0
+    heading = rng.uniform(0, 360)
+    sky = w.query(x, y, heading=heading, pitch=pitch, noise=0.1, arc=arc, arc_start=-arc / 2, rng=rng)
+    q = prepare_query(sky.elevation_deg, model=model)
+    allowed = None
+    if window:
+        allowed = np.zeros(q.n, bool)
+        allowed[(int(heading) + np.arange(-15, 16)) % q.n] = True
+    pruned = search(w.db, q, prune=True, prune_factor=2.0, allowed_shifts=allowed)
+    _, full = _exhaustive(w.db, q)
+    if allowed is not None:
+        full = full + np.where(allowed, 0.0, np.inf)
+    ref = full.min(axis=1).reshape(w.db.grid.ny, w.db.grid.nx)
+    assert pruned.n_pruned > 0
+    assert pruned.argmin() == np.unravel_index(np.argmin(ref), ref.shape)
+    best = ref.min()
+    np.testing.assert_allclose(pruned.score.min(), best, rtol=1e-12)
+    ex = pruned.exact
+    np.testing.assert_allclose(pruned.score[ex], ref[ex], rtol=1e-9, atol=1e-9)
+    assert np.all(pruned.score[~ex] <= ref[~ex] * (1 + 1e-9) + 1e-9)
+    assert np.all(ex[ref <= 2.0 * best])
+    i, j = pruned.argmin()
+    assert pruned.shift[i, j] == np.argmin(full[i * w.db.grid.nx + j])
+    assert pruned.n_pruned == int((~ex).sum())
