@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 #: positions are scored in blocks of at most this many skylines (bounds the working memory)
 BLOCK = 1024
 #: partial panoramas: at most this many surviving skylines wait for exact scoring (bounds the memory)
-HOLD = 4 * BLOCK
+HOLD = 2 * BLOCK
 #: a database skyline with more missing samples than this fraction is excluded from the search
 MAX_MISSING_FRACTION = 0.1
 
