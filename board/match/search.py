@@ -5,11 +5,15 @@ the grid and keeps, per position, the best score over the allowed headings and t
 Memory is bounded by one database tile plus the (region-sized) score map: the database is never
 loaded whole.
 
-Pruning (full panoramas only) is exact: the Parseval bound of
-:func:`board.match.fft_score.lower_bound_full` is a lower bound of the score at every heading, so
-a position whose bound exceeds ``prune_factor`` times the best score found so far can never be the
-argmin, nor within that factor of it.  Such positions keep their bound (``exact`` False), which
-only ever makes the confidence analysis more cautious.
+Pruning is exact: for full panoramas the Parseval bound of
+:func:`board.match.fft_score.lower_bound_full`, for partial ones the float32 scores of
+:func:`board.match.fft_score.approx_scores_f32` minus their error bound
+(:func:`board.match.fft_score.f32_error_bound`), are lower bounds of the score at every heading, so
+a position whose bound exceeds ``prune_factor`` times the best score can never be the argmin, nor
+within that factor of it.  Such positions keep their bound (``exact`` False), which only ever
+makes the confidence analysis more cautious.  Partial panoramas: the surviving skylines are held
+(at most HOLD) and scored in float64 against the final best score; on overflow the ones with the
+largest bounds are dropped and their tiles read again at the end if they still survive.
 """
 from __future__ import annotations
 
@@ -22,8 +26,14 @@ import cv2
 import numpy as np
 
 from board.errors import InvalidInputError, NoDataError
-from board.match.fft_score import (QueryModel, approx_scores_f32, dft_rows, f32_error_bound, lower_bound_full,
-                                   score_block)
+from board.match.fft_score import (
+    QueryModel,
+    approx_scores_f32,
+    dft_rows,
+    f32_error_bound,
+    lower_bound_full,
+    score_block,
+)
 from board.skydb import GridSpec, SkyDB, Tile
 
 log = logging.getLogger(__name__)
