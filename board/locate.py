@@ -196,6 +196,39 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
     return ref, local
 
 
+def _multistart(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, noise_deg: float, region: Region,
+                half: int = 3) -> tuple[Refined, LocalDB] | None:
+    """Refine again from the fix's node and its 8 neighbours (same angles); the lowest cost wins.
+
+    The bilinearly interpolated database makes the cost piecewise smooth in position, with kinks on
+    the grid lines and small local minima near close horizons: one start can stop a few metres
+    from a deeper minimum in the next cell (the demo's 242-degree query stopped 9.3 m off at cost
+    12.5 deg^2; starting one node over reaches 5.3 deg^2, 5.5 m off).  Returns None when the
+    position is not free.
+    """
+    if "row" not in free:
+        return None
+    g = db.grid
+    lo_r, hi_r = max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)
+    lo_c, hi_c = max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1)
+    v0 = ref.values
+    r0, c0 = int(round(v0["row"])), int(round(v0["col"]))
+    local = _local_db(db, r0, c0, half=half)
+    m = half - 0.5
+    bounds = {"row": (max(r0 - m, lo_r), min(r0 + m, hi_r)), "col": (max(c0 - m, lo_c), min(c0 + m, hi_c))}
+    best = None
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            init = dict(v0, row=float(r0 + dr), col=float(c0 + dc))
+            if not (bounds["row"][0] <= init["row"] <= bounds["row"][1]
+                    and bounds["col"][0] <= init["col"] <= bounds["col"][1]):
+                continue
+            r = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
+            if best is None or r.cost < best.cost:
+                best = r
+    return None if best is None else (best, local)
+
+
 def _competitive(smap: ScoreMap, factor: float) -> Region:
     """The positions of ``smap`` scoring within ``factor`` of its best, as a masked region (grid indices)."""
     keep = smap.score <= factor * float(np.min(smap.score)) + 1e-12
@@ -317,6 +350,11 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
                                       region=smap.region)
             if best is None or ref.cost < best[0].cost:
                 best = (ref, local)
+        polished = _multistart(db, best[0], theta, el, free=PARAMS if model == "tilt" else ("row", "col", "heading"),
+                               tilt_prior=tilt_prior, noise_deg=noise, region=smap.region)
+        if polished is not None and polished[0].cost < best[0].cost:
+            log.info("multistart refinement: cost %.3g -> %.3g deg^2", best[0].cost, polished[0].cost)
+            best = polished
         return best
 
     q, smap = coarse(level)
