@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import atexit
+import importlib.util
 import os
+import sys
 import shutil
 import tempfile
 from pathlib import Path
@@ -17,6 +19,19 @@ os.environ.setdefault("XDG_CACHE_HOME", str(_TMP / "xdg"))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DEMS = REPO.parent / "shared" / "data" / "dems"
+
+
+def _register_service_helpers() -> None:
+    """Make tests/render_service/_service_helpers.py importable as ``skyloc_service_test_helpers``
+    (tests are collected with --import-mode=importlib, so test folders are not packages)."""
+    name = "skyloc_service_test_helpers"
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("render_service") / "_service_helpers.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+
+
+_register_service_helpers()
 
 
 @pytest.fixture(scope="session")

@@ -134,19 +134,10 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
 @pytest.mark.realdem
 def test_render_database_operator_submits_to_the_service(real_dem, tmp_path):
     """Against a real `skyloc serve` (the render-service tests' helper): upload, submit, poll to done."""
-    import importlib.util
-    from pathlib import Path
+
+    import skyloc_service_test_helpers as H  # registered by tests/conftest.py
 
     import blender_addon
-
-    helper = Path(__file__).resolve().parents[1] / "render_service" / "_service_helpers.py"
-    if not helper.is_file():
-        pytest.skip("render-service test helpers not present")
-    spec = importlib.util.spec_from_file_location("skyloc_service_test_helpers", helper)
-    H = sys.modules.get(spec.name) or importlib.util.module_from_spec(spec)
-    if spec.name not in sys.modules:
-        sys.modules[spec.name] = H
-        spec.loader.exec_module(H)
     (tmp_path / "data").mkdir()
     srv = H.Server(tmp_path / "data", workers=1)
     bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import base64
 import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+import skyloc_service_test_helpers as H  # registered by tests/conftest.py
 from fastapi.testclient import TestClient
 
 from board.errors import InvalidInputError
@@ -19,18 +18,6 @@ from render_service.main import create_app
 from render_service.security import TokenAuth, check_startup, is_loopback, load_token
 from render_service.settings import ServiceSettings
 
-
-def _helpers():
-    name = "skyloc_service_test_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_service_helpers.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-H = _helpers()
 GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
 
 

@@ -16,13 +16,13 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+import skyloc_service_test_helpers as H  # registered by tests/conftest.py
 
 from board.skydb import SkyDB
 from render_service.store import JobStore
@@ -30,17 +30,6 @@ from render_service.store import JobStore
 pytestmark = [pytest.mark.service, pytest.mark.slow, pytest.mark.realdem]
 
 
-def _helpers():
-    name = "skyloc_service_test_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_service_helpers.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-H = _helpers()
 GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
 # 100 m at 2 m: 51 x 51 positions, tiles of 6 -> 9 x 9 = 81 tiles, 72 azimuths (5 degrees)
 JOB = {"kind": "skyline_db", "size_m": 100, "step_m": 2, "azimuths": 72, "tile_size": 6, "camera_height_m": 1.5}
