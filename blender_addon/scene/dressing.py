@@ -322,14 +322,7 @@ def sun_visible(x: float, y: float, z: float, sun_enu, *, scene: bpy.types.Scene
 
 def clear_dressing(scene: bpy.types.Scene | None = None) -> None:
     """Remove the rocks (the materials, world and sun are rebuilt in place by :func:`dress_scene`)."""
-    coll = bpy.data.collections.get(DRESSING_COLLECTION)
-    if coll is None:
-        return
-    for obj in list(coll.objects):
-        me = obj.data
-        bpy.data.objects.remove(obj, do_unlink=True)
-        if me is not None and me.users == 0:
-            bpy.data.meshes.remove(me)
+    state.remove_collection_objects(DRESSING_COLLECTION)
 
 
 def _place_rocks(scene, terrain: MultiResTerrain, deg: Degradation, center_xy, rng: np.random.Generator,

@@ -21,6 +21,20 @@ def reset_scene() -> bpy.types.Scene:
     return bpy.context.scene
 
 
+def remove_collection_objects(name: str, *, remove_collection: bool = False) -> None:
+    """Delete the objects of collection ``name`` and their now unused meshes (the collection too if asked)."""
+    coll = bpy.data.collections.get(name)
+    if coll is None:
+        return
+    for obj in list(coll.objects):
+        me = obj.data
+        bpy.data.objects.remove(obj, do_unlink=True)
+        if me is not None and me.users == 0:
+            bpy.data.meshes.remove(me)
+    if remove_collection:
+        bpy.data.collections.remove(coll)
+
+
 def get_scene(scene: bpy.types.Scene | None = None) -> bpy.types.Scene:
     return scene if scene is not None else bpy.context.scene
 

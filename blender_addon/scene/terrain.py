@@ -62,15 +62,7 @@ def default_material() -> bpy.types.Material:
 
 def clear_terrain(scene: bpy.types.Scene | None = None) -> None:
     """Remove the terrain collection, its objects and meshes."""
-    coll = bpy.data.collections.get(TERRAIN_COLLECTION)
-    if coll is None:
-        return
-    for obj in list(coll.objects):
-        me = obj.data
-        bpy.data.objects.remove(obj, do_unlink=True)
-        if me is not None and me.users == 0:
-            bpy.data.meshes.remove(me)
-    bpy.data.collections.remove(coll)
+    state.remove_collection_objects(TERRAIN_COLLECTION, remove_collection=True)
 
 
 def build_terrain(terrain: MultiResTerrain, *, scene: bpy.types.Scene | None = None,
