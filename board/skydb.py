@@ -277,7 +277,7 @@ class SkyDBWriter:
         shape = (tile.nrows, tile.ncols, self.meta.n_azimuth)
         if elevation_deg.shape != shape:
             raise InvalidInputError(f"tile {tile.key} expects elevations of shape {shape}, got {elevation_deg.shape}")
-        if self.done_mask()[tile.ti, tile.tj]:
+        if self._group["tile_done"][tile.ti, tile.tj]:  # this tile's flag only, not the whole mask
             raise InvalidInputError(f"tile {tile.key} of {self.path} is already written; tiles are written once")
         sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
         self._group["elevation"][sl] = quantize_elevation(elevation_deg)
