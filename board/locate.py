@@ -408,6 +408,35 @@ def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.n
     return out / 2.0  # four directions, two independent ones
 
 
+#: mid-cell bilinear interpolation error relative to a node's second difference over two steps
+#: (exact for skylines varying quadratically with position: h^2 f''/8 against h^2 f''/2)
+MIDCELL_FACTOR = 0.25
+
+
+def _grid_error_var(local: LocalDB, ref: Refined) -> float:
+    """Per-sample variance (degrees^2) of the database's grid error at the fix, at the fix's azimuths.
+
+    The second difference of the node skylines around the fix (along rows, columns and both
+    diagonals) times :data:`MIDCELL_FACTOR` estimates how far a skyline between nodes departs from
+    what the grid represents.  Near close horizons it dwarfs the query noise; the coarse score
+    map's likelihood uses it as a variance floor so that a place whose grid nodes miss the truth
+    by that much is not ruled out (the look-elsewhere effect of a 65-degree frame).
+    """
+    nr, nc, _ = local.el.shape
+    if nr < 3 or nc < 3 or ref.enu_az_deg.size == 0:
+        return 0.0
+    v = ref.values
+    i = int(np.clip(round(v["row"] - local.row0), 1, nr - 2))
+    j = int(np.clip(round(v["col"] - local.col0), 1, nc - 2))
+    e = local.el
+    ms = []
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        eps = local.sample(e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj]), ref.enu_az_deg)
+        eps = eps - eps.mean()
+        ms.append(float(np.mean(eps * eps)))
+    return MIDCELL_FACTOR ** 2 * float(np.mean(ms))
+
+
 def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refined, local: LocalDB, *, mode: str,
               th: Thresholds, t0: float, region: Region) -> Fix:
     g = db.grid
@@ -443,8 +472,9 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     if smap is not None:
         smin = float(np.min(smap.score))
         s2c = smin / max(q.n_seen - q.n_params, 1) * infl
-        # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp
-        s2c = max(s2c, s2 * infl)
+        # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp, and
+        # grid nodes near the truth elsewhere may miss it by the grid's interpolation error
+        s2c = max(s2c, (s2 + _grid_error_var(local, ref)) * infl)
         r0, c0 = smap.region.row0, smap.region.col0
         # each position's best heading: its likelihood-weighted spread about the fix widens the heading sigma
         hmap = heading_deg(smap.shift, n=db.meta.n_azimuth, db_start_deg=db.meta.azimuth_start_deg,
