@@ -36,6 +36,8 @@ RELEVEL_DEG = 1.5
 RELEVEL_KEEP = 10.0
 #: candidates whose coarse score exceeds this factor times the best are not refined
 CANDIDATE_FACTOR = 3.0
+#: final refinement weighted by the grid error at each azimuth (see _reweighted)
+REWEIGHT = os.environ.get("SKYLOC_NO_REWEIGHT", "") == ""
 
 
 @dataclass
@@ -355,6 +357,11 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
         if polished is not None and polished[0].cost < best[0].cost:
             log.info("multistart refinement: cost %.3g -> %.3g deg^2", best[0].cost, polished[0].cost)
             best = polished
+        if REWEIGHT:
+            rew = _reweighted(db, best[0], theta, el, free=PARAMS if model == "tilt" else ("row", "col", "heading"),
+                              tilt_prior=tilt_prior, region=smap.region)
+            if rew is not None:
+                best = rew
         return best
 
     q, smap = coarse(level)
@@ -403,6 +410,8 @@ def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.n
         eps = e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj])
         ej = local.sample(eps, az) * INTERP_ERROR_FACTOR
         ej = ej - ej.mean()
+        if ref.weights is not None:
+            ej = ej * np.sqrt(ref.weights)
         delta = pinv @ (ref.jac.T @ ej)
         out += np.outer(delta, delta)
     return out / 2.0  # four directions, two independent ones
@@ -413,28 +422,82 @@ def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.n
 MIDCELL_FACTOR = 0.25
 
 
-def _grid_error_var(local: LocalDB, ref: Refined) -> float:
-    """Per-sample variance (degrees^2) of the database's grid error at the fix, at the fix's azimuths.
+def _grid_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> np.ndarray:
+    """Per-sample variance (degrees^2) of the database's grid error near (row, col), at ENU azimuths ``az_deg``.
 
-    The second difference of the node skylines around the fix (along rows, columns and both
-    diagonals) times :data:`MIDCELL_FACTOR` estimates how far a skyline between nodes departs from
-    what the grid represents.  Near close horizons it dwarfs the query noise; the coarse score
-    map's likelihood uses it as a variance floor so that a place whose grid nodes miss the truth
-    by that much is not ruled out (the look-elsewhere effect of a 65-degree frame).
+    The second difference of the node skylines around the node nearest (row, col) (along rows,
+    columns and both diagonals) times :data:`MIDCELL_FACTOR` estimates how far a skyline between
+    nodes departs from the bilinear interpolation of the grid.  It is large where the horizon is
+    close (parallax) and small where it is far.
     """
     nr, nc, _ = local.el.shape
-    if nr < 3 or nc < 3 or ref.enu_az_deg.size == 0:
-        return 0.0
-    v = ref.values
-    i = int(np.clip(round(v["row"] - local.row0), 1, nr - 2))
-    j = int(np.clip(round(v["col"] - local.col0), 1, nc - 2))
+    if nr < 3 or nc < 3 or az_deg.size == 0:
+        return np.zeros(az_deg.size)
+    i = int(np.clip(round(row - local.row0), 1, nr - 2))
+    j = int(np.clip(round(col - local.col0), 1, nc - 2))
     e = local.el
-    ms = []
+    acc = np.zeros(az_deg.size)
     for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        eps = local.sample(e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj]), ref.enu_az_deg)
+        eps = local.sample(e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj]), az_deg)
         eps = eps - eps.mean()
-        ms.append(float(np.mean(eps * eps)))
-    return MIDCELL_FACTOR ** 2 * float(np.mean(ms))
+        acc += eps * eps
+    return MIDCELL_FACTOR ** 2 * acc / 4.0
+
+
+def _grid_error_var(local: LocalDB, ref: Refined) -> float:
+    """Mean per-sample grid-error variance (degrees^2) at the fix (see :func:`_grid_error_samples`).
+
+    Near close horizons it dwarfs the query noise; the coarse score map's likelihood uses it as a
+    variance floor so that a place whose grid nodes miss the truth by that much is not ruled out
+    (the look-elsewhere effect of a 65-degree frame).
+    """
+    v = ref.values
+    return float(np.mean(_grid_error_samples(local, v["row"], v["col"], ref.enu_az_deg))) if ref.enu_az_deg.size else 0.0
+
+
+def _noise_given_weights(r2: np.ndarray, g2: np.ndarray, dof: int) -> float:
+    """Noise variance s (degrees^2) with sum(r2 / (s + g2)) = dof (residuals r2, grid-error variances g2)."""
+    lo, hi = 1e-8, max(float(r2.mean()), 1e-6) * 4.0
+    if float(np.sum(r2 / (lo + g2))) <= dof:
+        return lo
+    for _ in range(60):  # bisection in log space: the sum decreases with s
+        mid = math.sqrt(lo * hi)
+        if float(np.sum(r2 / (mid + g2))) > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region: Region,
+                iterations: int = 2) -> tuple[Refined, LocalDB] | None:
+    """Refine again with each sample weighted by 1 / (noise + grid error at its azimuth).
+
+    Azimuths whose horizon is close change fast between grid nodes, so the interpolated database
+    is least reliable there; down-weighting them (iteratively reweighted least squares, the noise
+    variance solved so that the weighted chi-square equals its degrees of freedom) lets the far,
+    well-represented horizon fix the position.  The weights passed to :func:`refine` are relative
+    (1 where the grid error is nil) so that its cost still estimates the noise variance.
+    """
+    if "row" not in free:
+        return None
+    g = db.grid
+    lo_r, hi_r = max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)
+    lo_c, hi_c = max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1)
+    cur = ref
+    local = None
+    for _ in range(iterations):
+        v = cur.values
+        r0, c0 = int(round(v["row"])), int(round(v["col"]))
+        local = _local_db(db, r0, c0, half=3)
+        g2 = _grid_error_samples(local, v["row"], v["col"], cur.enu_az_deg)
+        res_unw = cur.residual if cur.weights is None else cur.residual / np.sqrt(cur.weights)
+        s_n = _noise_given_weights(res_unw ** 2, g2, max(res_unw.size - len(free) - 1, 1))
+        w_abs = s_n / (s_n + g2)
+        bounds = {"row": (max(r0 - 2.5, lo_r), min(r0 + 2.5, hi_r)), "col": (max(c0 - 2.5, lo_c), min(c0 + 2.5, hi_c))}
+        cur = refine(local, theta, el, dict(v), free=free, tilt_prior=tilt_prior, noise_deg=math.sqrt(s_n),
+                     bounds=bounds, weights=w_abs)
+    return cur, local
 
 
 def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refined, local: LocalDB, *, mode: str,

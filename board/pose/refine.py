@@ -62,8 +62,9 @@ class Refined:
     """Result of :func:`refine`.
 
     values : dict of the 5 pose parameters (row/col fractional grid indices, degrees for angles)
-    offset_deg : fitted mean elevation offset; cost : sum of squared residuals, degrees^2
-    residual : (n_seen,) degrees; jac : (n_seen, n_free) d residual / d free parameter
+    offset_deg : fitted mean elevation offset; cost : sum of squared (weighted) residuals, degrees^2
+    residual : (n_seen,) degrees (times the square root of the weights when weighted);
+    jac : (n_seen, n_free) d residual / d free parameter; weights : the relative sample weights or None
     free : names of the refined parameters; prior_info : (n_free, n_free) information of the prior
     """
 
@@ -76,6 +77,7 @@ class Refined:
     prior_info: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     n_iter: int = 0
     enu_az_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    weights: np.ndarray | None = None
 
 
 def _enu_az(vb: np.ndarray, v: dict) -> np.ndarray:
@@ -176,4 +178,5 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
     n = res.size
     pinfo = J[n:].T @ J[n:] if J.shape[0] > n else np.zeros((len(free), len(free)))
     v["heading"] = float(np.mod(v["heading"], 360.0))
-    return Refined(v, mu, float(res @ res), res, J[:n], free, pinfo, it, _enu_az(vb, v))
+    return Refined(v, mu, float(res @ res), res, J[:n], free, pinfo, it, _enu_az(vb, v),
+                   None if weights is None else np.asarray(weights, float))
