@@ -41,6 +41,9 @@ MISSING = np.int16(-32768)          # sentinel: not rendered / not seen
 DISTANCE_SCALE_M = 10.0             # one uint16 unit of the distance array, metres
 DISTANCE_MISSING = np.uint16(65535)
 DEFAULT_TILE = 64
+#: default bound (MB) of a reader's in-memory copy of the int16 elevations: a database whose whole
+#: elevation array is larger (a 7 x 7 km grid at 5 m is 1.4 GB) is streamed and never cached
+DEFAULT_CACHE_MB = 64.0
 
 
 @dataclass(frozen=True)
@@ -298,19 +301,100 @@ class SkyDBWriter:
         return SkyDB.open(self.path)
 
 
-class SkyDB:
-    """Read-only access to a skyline database, streamed tile by tile (bounded memory)."""
+class _ChunkReader:
+    """Reads whole chunks of one array of the store straight from their files (bytes + zstd codecs).
 
-    def __init__(self, path: Path, meta: SkyDBMeta, group, complete: bool) -> None:
+    A board localising repeatedly reads every chunk of the same store; going through zarr's
+    asynchronous machinery costs about as much as the decompression itself.  Only the layout this
+    module writes is read this way (regular chunks, default "/" chunk keys, little-endian bytes,
+    optional zstd, no storage transformers); :meth:`for_array` returns None for anything else and
+    the caller uses zarr.  A missing chunk file is the fill value (zarr semantics).
+    """
+
+    def __init__(self, root: Path, name: str, shape: tuple[int, ...], chunks: tuple[int, ...], dtype: np.dtype,
+                 fill_value, zstd: bool) -> None:
+        self.root, self.name = root, name
+        self.shape, self.chunks, self.dtype = shape, chunks, dtype
+        self.fill_value = fill_value
+        self.nbytes = int(np.prod(chunks)) * dtype.itemsize
+        self._zstd = None
+        if zstd:
+            from numcodecs import Zstd  # noqa: PLC0415 - the codec zarr itself uses
+
+            self._zstd = Zstd()
+
+    @classmethod
+    def for_array(cls, root: Path, name: str) -> "_ChunkReader | None":
+        """A reader for array ``name`` of the store at ``root``, or None if its layout is not the plain one."""
+        try:
+            doc = json.loads((root / name / "zarr.json").read_text())
+            grid, key = doc["chunk_grid"], doc["chunk_key_encoding"]
+            codecs = [c["name"] for c in doc["codecs"]]
+            endian = doc["codecs"][0].get("configuration", {}).get("endian", "little")
+            dtype = np.dtype(doc["data_type"])
+            plain = (doc.get("zarr_format") == 3 and doc.get("node_type") == "array"
+                     and not doc.get("storage_transformers") and grid["name"] == "regular"
+                     and key["name"] == "default" and key.get("configuration", {}).get("separator", "/") == "/"
+                     and codecs in (["bytes"], ["bytes", "zstd"]) and (endian == "little" or dtype.itemsize == 1)
+                     and dtype.kind in "iu" and isinstance(doc["fill_value"], int))
+            if not plain:
+                return None
+            return cls(root, name, tuple(doc["shape"]), tuple(grid["configuration"]["chunk_shape"]),
+                       dtype.newbyteorder("<"), doc["fill_value"], zstd=codecs[-1] == "zstd")
+        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, ImportError):
+            return None
+
+    def chunk(self, idx: tuple[int, ...]) -> np.ndarray:
+        """The whole chunk at chunk-grid index ``idx`` (chunk shape, also at the array's edges)."""
+        f = self.root / self.name / "c" / "/".join(str(i) for i in idx)
+        try:
+            buf = f.read_bytes()
+        except FileNotFoundError:
+            return np.full(self.chunks, self.fill_value, dtype=self.dtype)
+        except OSError as exc:
+            raise FormatError(f"{self.root}: cannot read chunk {f.relative_to(self.root)} ({exc}); "
+                              "the store is truncated or corrupt: re-render it") from exc
+        if self._zstd is not None:
+            try:
+                buf = self._zstd.decode(buf)
+            except Exception as exc:  # numcodecs raises RuntimeError on a damaged frame
+                raise FormatError(f"{self.root}: chunk {f.relative_to(self.root)} does not decompress "
+                                  f"({type(exc).__name__}: {exc}); the store is truncated or corrupt: "
+                                  "re-render it") from exc
+        if len(buf) != self.nbytes:
+            raise FormatError(f"{self.root}: chunk {f.relative_to(self.root)} holds {len(buf)} bytes, "
+                              f"{self.nbytes} expected; the store is truncated or corrupt: re-render it")
+        return np.frombuffer(buf, dtype=self.dtype).reshape(self.chunks)
+
+
+class SkyDB:
+    """Read-only access to a skyline database, streamed tile by tile (bounded memory).
+
+    Chunks are read straight from their files (zarr for any layout this module does not write).
+    A complete database whose whole elevation array fits in ``cache_mb`` is kept in memory as int16
+    chunks as they are read, so repeated queries on one site skip the disk and the decompression;
+    a larger one is streamed on every query and never cached.
+    """
+
+    def __init__(self, path: Path, meta: SkyDBMeta, group, complete: bool, *,
+                 cache_mb: float = DEFAULT_CACHE_MB) -> None:
         self.path = path
         self.meta = meta
         self._group = group
         self.complete = complete
         self.tiles = plan_tiles(meta.grid, meta.tile_size)
+        self._readers = {name: _ChunkReader.for_array(Path(path), name) for name in ("elevation", "distance")}
+        g = meta.grid
+        elevation_mb = g.ny * g.nx * meta.n_azimuth * 2 / 1e6
+        #: int16 elevation chunks kept in memory (chunk index -> array), or None when not caching
+        self._cache: dict | None = {} if complete and 0 < elevation_mb <= cache_mb else None
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> "SkyDB":
-        """Open and validate a store; FormatError with the reason if it cannot be read."""
+    def open(cls, path: str | os.PathLike, *, cache_mb: float = DEFAULT_CACHE_MB) -> "SkyDB":
+        """Open and validate a store; FormatError with the reason if it cannot be read.
+
+        cache_mb : keep the int16 elevations in memory (MB) when the whole array fits; 0 never caches
+        """
         zarr = _zarr()
         path = Path(path)
         if not path.exists():
@@ -338,7 +422,7 @@ class SkyDB:
                               f"metadata says {(g.ny, g.nx, meta.n_azimuth)} int16")
         if tuple(done.shape) != (math.ceil(g.ny / meta.tile_size), math.ceil(g.nx / meta.tile_size)):
             raise FormatError(f"{path} is corrupt: tile_done has shape {done.shape}")
-        return cls(path, meta, group, bool(attrs.get("complete", False)))
+        return cls(path, meta, group, bool(attrs.get("complete", False)), cache_mb=cache_mb)
 
     @property
     def grid(self) -> GridSpec:
@@ -355,12 +439,41 @@ class SkyDB:
         return int(self.done_mask().sum())
 
     def _read(self, name: str, tile: Tile) -> np.ndarray:
-        sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
-        try:
-            return np.asarray(self._group[name][sl])
-        except Exception as exc:
-            raise FormatError(f"{self.path}: cannot read tile {tile.key} of {name} "
-                              f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
+        r1, c1 = tile.row0 + tile.nrows, tile.col0 + tile.ncols
+        reader = self._readers.get(name)
+        if reader is None or len(reader.chunks) != 3 or reader.chunks[2] != self.meta.n_azimuth:
+            sl = (slice(tile.row0, r1), slice(tile.col0, c1))
+            try:
+                return np.asarray(self._group[name][sl])
+            except Exception as exc:
+                raise FormatError(f"{self.path}: cannot read tile {tile.key} of {name} "
+                                  f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
+        cache = self._cache if name == "elevation" else None
+        ch, cw = reader.chunks[0], reader.chunks[1]
+        out = np.empty((tile.nrows, tile.ncols, reader.chunks[2]), dtype=reader.dtype)
+        if out.size == 0:
+            return out
+        for ci in range(tile.row0 // ch, (r1 - 1) // ch + 1):
+            for cj in range(tile.col0 // cw, (c1 - 1) // cw + 1):
+                chunk = None if cache is None else cache.get((ci, cj))
+                if chunk is None:
+                    try:
+                        chunk = reader.chunk((ci, cj, 0))
+                    except FormatError as exc:
+                        raise FormatError(f"cannot read tile {tile.key} of {name}: {exc}") from exc
+                    if cache is not None:  # edge chunks trimmed to the array: the cache holds the array's size
+                        chunk = np.ascontiguousarray(chunk[:reader.shape[0] - ci * ch, :reader.shape[1] - cj * cw])
+                        cache[(ci, cj)] = chunk
+                a0, a1 = max(tile.row0, ci * ch), min(r1, (ci + 1) * ch)
+                b0, b1 = max(tile.col0, cj * cw), min(c1, (cj + 1) * cw)
+                out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
+                    chunk[a0 - ci * ch:a1 - ci * ch, b0 - cj * cw:b1 - cj * cw]
+        return out
+
+    @property
+    def cached_mb(self) -> float:
+        """MB of int16 elevations held in memory by this reader (0 when not caching)."""
+        return 0.0 if not self._cache else sum(c.nbytes for c in self._cache.values()) / 1e6
 
     def read_tile_raw(self, tile: Tile) -> np.ndarray:
         """int16 elevations (0.01 degree units, MISSING sentinel) of one tile."""
@@ -389,11 +502,12 @@ class SkyDB:
         g = self.grid
         if not (0 <= i < g.ny and 0 <= j < g.nx):
             raise InvalidInputError(f"grid index ({i}, {j}) is outside the {g.ny} x {g.nx} grid")
-        return dequantize_elevation(np.asarray(self._group["elevation"][i, j, :]))
+        return dequantize_elevation(self._read("elevation", Tile(-1, -1, i, j, 1, 1))[0, 0])
 
     def read_all(self) -> np.ndarray:
         """All elevations (degrees, float32). Only for small databases: use iter_tiles otherwise."""
-        return dequantize_elevation(np.asarray(self._group["elevation"][...]))
+        g = self.grid
+        return dequantize_elevation(self._read("elevation", Tile(-1, -1, 0, 0, g.ny, g.nx)))
 
     def size_bytes(self) -> int:
         """Bytes on disk of the store."""
