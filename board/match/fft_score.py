@@ -139,6 +139,14 @@ class QueryModel:
     white_e: np.ndarray = None  # type: ignore[assignment]
     _tiled: dict = field(default_factory=dict, repr=False, compare=False)
     _tiled32: dict = field(default_factory=dict, repr=False, compare=False)
+    _consts: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def constant(self, name: str, make):
+        """A per-query constant ``make(self)``, computed once and kept (bounds, magnitudes)."""
+        v = self._consts.get(name)
+        if v is None:
+            v = self._consts[name] = make(self)
+        return v
 
     def tiled(self, rows: int) -> dict:
         """The query spectra repeated on ``rows`` rows (contiguous, for cv2.mulSpectrums); cached."""
@@ -234,11 +242,28 @@ def lower_bound_full(q: QueryModel, sc: np.ndarray) -> np.ndarray:
 
     For every shift, ``|E_k - w^(ka) S_k| >= | |E_k| - |S_k| |`` bin by bin (Parseval), so
     ``score(p, a) >= sum_k (|E_k| - |S_k|)^2 / N`` over the bins the model does not absorb.
+    Expanded as ``sum |S_k|^2 - 2 sum |E_k| |S_k| + sum |E_k|^2`` (one square root per bin and a
+    matrix-vector product); the expansion's rounding (relative 1e-16 of the energies) is
+    subtracted with a wide margin, so the result stays a lower bound.
     """
     skip = 1 if q.model == "offset" else 2
-    me, mult = bin_magnitudes(q.spec_we[None], skip)
-    ms, _ = bin_magnitudes(sc, skip)
-    return ((ms - me) ** 2 * mult).sum(axis=-1) / q.n
+
+    def query_terms(q):
+        me, mult = bin_magnitudes(q.spec_we[None], skip)
+        return mult * me[0], float((mult * me[0] ** 2).sum())
+
+    wme, e_q = q.constant(f"lb_full_{skip}", query_terms)
+    _, re, im, nyq = _ccs_views(sc)
+    re, im = re[:, skip - 1:], im[:, skip - 1:]
+    mag = np.sqrt(re * re + im * im)
+    e_s = bin_energy(sc, skip)
+    cross = mag @ wme[:mag.shape[1]]
+    if nyq is not None:
+        cross += np.abs(nyq) * wme[-1]
+    lb = e_s - 2.0 * cross + e_q
+    lb -= 1e-12 * (e_s + e_q)  # rounding of the expansion (about N u of the energies), with margin
+    np.maximum(lb, 0.0, out=lb)
+    return lb / q.n
 
 
 def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.ndarray | None = None) -> ScoreBlock:
@@ -343,42 +368,56 @@ def f32_error_bound(q: QueryModel, s: np.ndarray) -> np.ndarray:
     ns = np.sqrt(ns2)
     n4 = np.sqrt(np.einsum("ij,ij->i", s2, s2).astype(np.float64) * 1.01)  # ||s^2||_2
     g = 40.0 * _U32 * (np.log2(q.n) + 2.0)
-    w_basis = q.chol.T @ q.basis  # whitened basis rows (time domain)
-    err = g * (_max_abs_spectrum(q.spec_w) * n4 + 2.0 * _max_abs_spectrum(q.spec_we) * ns)
+    k_w, k_we, norm_basis, k_white = q.constant("f32_bound", _f32_bound_constants)
+    err = g * (k_w * n4 + 2.0 * k_we * ns)
     mag = q.sum_we2 + q.n_seen * ns2 + 2.0 * np.sqrt(q.sum_we2 * q.n_seen) * ns
     for i in range(q.n_params):
-        ci = np.sqrt((w_basis[i] ** 2).sum()) * ns + abs(q.white_e[i])
-        ei = g * _max_abs_spectrum(q.spec_white[i]) * ns
+        ci = norm_basis[i] * ns + abs(q.white_e[i])
+        ei = g * k_white[i] * ns
         err += 2.0 * ci * ei + ei * ei
         mag += ci * ci
     return err + 8.0 * _U32 * mag
 
 
+def _f32_bound_constants(q: QueryModel) -> tuple[float, float, list[float], list[float]]:
+    """Per-query factors of :func:`f32_error_bound`: max |W_k|, max |(we)_k|, ||whitened basis_i||, max |white_i,k|."""
+    w_basis = q.chol.T @ q.basis  # whitened basis rows (time domain)
+    return (_max_abs_spectrum(q.spec_w), _max_abs_spectrum(q.spec_we),
+            [float(np.sqrt((w_basis[i] ** 2).sum())) for i in range(q.n_params)],
+            [_max_abs_spectrum(q.spec_white[i]) for i in range(q.n_params)])
+
+
 def _score_full(q: QueryModel, sc: np.ndarray, want_b: bool) -> ScoreBlock:
-    """Full panorama: residual energy outside the bins absorbed by the model (0, or 0 and +-1)."""
+    """Full panorama: residual energy outside the bins absorbed by the model (0, or 0 and +-1).
+
+    With a ridge the tilt model leaves ``leftover |R_1(a)|^2`` of the first-harmonic residual
+    ``R_1(a) = E_1 - w^a S_1``; its heading-dependent part ``-2 leftover Re(conj(E_1) S_1 w^a)`` is
+    bin 1 of the same inverse DFT (scaled), so no (P, N) complex array is formed.
+    """
     n = q.n
     skip = 1 if q.model == "offset" else 2
     ec = q.spec_we[None]
     acc = cv2.mulSpectrums(sc, q.tiled(sc.shape[0])["we"], cv2.DFT_ROWS, conjB=True)
     acc[:, 0] = 0.0
-    if skip == 2:
-        acc[:, 1:3] = 0.0
-    cross = idft_rows(acc)  # (1/N) sum over kept bins conj(E_k) S_k w^(ka)
-    scores = (bin_energy(ec, skip) + bin_energy(sc, skip))[:, None] / n - 2.0 * cross
+    const = (bin_energy(ec, skip) + bin_energy(sc, skip)) / n
     b = None
     if skip == 2:
-        # first-harmonic residual R_1(a) = E_1 - w^a S_1; the ridge leaves part of its energy
+        leftover = 2.0 / n - 1.0 / (n / 2.0 + q.ridge)
         e1 = complex(q.spec_we[1], q.spec_we[2])
         s1 = sc[:, 1] + 1j * sc[:, 2]
-        rot = np.exp(2j * np.pi * np.arange(n) / n)
-        r1 = e1 - s1[:, None] * rot[None, :]
-        leftover = 2.0 / n - 1.0 / (n / 2.0 + q.ridge)
-        scores += np.abs(r1) ** 2 * leftover
+        const += leftover * (abs(e1) ** 2 + np.abs(s1) ** 2)
+        # idft turns bin 1 (and its mirror) X_1 into (2/N) Re(X_1 w^a): scale X_1 = S_1 conj(E_1)
+        # so that -2 idft(acc) carries -2 leftover Re(conj(E_1) S_1 w^a)
+        acc[:, 1:3] *= leftover * n / 2.0
         if want_b:
             # b_0 = sum r = R_0 = 0 after centring (both sides centred); b_1 + i b_2 = e^(i theta0) conj(R_1)
+            r1 = e1 - s1[:, None] * np.exp(2j * np.pi * np.arange(n) / n)[None, :]
             z = np.exp(1j * np.radians(q.theta_deg[0])) * np.conj(r1)
             b = np.stack([np.zeros(r1.shape), z.real, z.imag])
-    elif want_b:
+    scores = idft_rows(acc)  # (1/N) sum over bins conj(E_k) S_k w^(ka), bin 1 scaled as above
+    scores *= -2.0
+    scores += const[:, None]
+    if skip == 1 and want_b:
         b = np.zeros((1,) + scores.shape)
     np.maximum(scores, 0.0, out=scores)
     return ScoreBlock(scores, b)
