@@ -84,3 +84,39 @@ def test_map_likelihood_matches_a_direct_evaluation():
     np.testing.assert_allclose(lk.cov_xy, [[(w * dx * dx).sum(), (w * dx * dy).sum()],
                                            [(w * dx * dy).sum(), (w * dy * dy).sum()]], rtol=1e-6)
     assert lk.ambiguity_ratio == pytest.approx(0.5)
+
+
+def test_grid_error_is_the_bilinear_midcell_error_of_a_quadratic_field():
+    """Skylines varying quadratically with position: the estimate equals the true mid-cell error."""
+    from board.locate import _grid_error_samples
+    from board.pose.refine import LocalDB
+
+    rng = np.random.default_rng(5)
+    n = 360
+    a, b, c = rng.normal(0, 0.4, n), rng.normal(0, 0.4, n), rng.normal(5, 2, n)
+    ii, jj = np.mgrid[0:5, 0:5]
+    el = a[None, None] * ii[..., None] ** 2 + b[None, None] * jj[..., None] ** 2 + c[None, None]
+    local = LocalDB(el, 10, 20, 0.0)
+    az = np.arange(n, dtype=float)
+    got = _grid_error_samples(local, 12.0, 22.0, az)
+    # brute force: bilinear interpolation vs the field at the midpoints of the cell edges and centre
+    errs = []
+    for di, dj in ((0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.5, -0.5)):
+        r, s = 12.0 + di, 22.0 + dj
+        truth = a * (r - 10) ** 2 + b * (s - 20) ** 2 + c
+        e = local.skyline_at(r, s) - truth
+        errs.append((e - e.mean()) ** 2)
+    assert np.allclose(got, np.mean(errs, axis=0), rtol=1e-9, atol=1e-12)
+
+
+def test_noise_given_weights_solves_the_weighted_chi_square():
+    from board.locate import _noise_given_weights
+
+    rng = np.random.default_rng(6)
+    g2 = rng.uniform(0, 0.5, 300) ** 2
+    r2 = (rng.normal(size=300) * np.sqrt(0.01 + g2)) ** 2
+    s = _noise_given_weights(r2, g2, 295)
+    assert float(np.sum(r2 / (s + g2))) == pytest.approx(295, rel=1e-6)
+    assert 0.005 < s < 0.02  # recovers the simulated noise variance 0.01
+    # without grid error it is the usual residual variance
+    assert _noise_given_weights(r2, np.zeros(300), 295) == pytest.approx(r2.sum() / 295, rel=1e-6)
