@@ -39,8 +39,8 @@ class LocalDB:
     def skyline_at(self, row: float, col: float) -> np.ndarray:
         """(N,) bilinear interpolation of the node skylines at fractional (row, col) (clamped to the window)."""
         nr, nc, _ = self.el.shape
-        fr = float(np.clip(row - self.row0, 0, nr - 1))
-        fc = float(np.clip(col - self.col0, 0, nc - 1))
+        fr = min(max(float(row) - self.row0, 0.0), nr - 1.0)
+        fc = min(max(float(col) - self.col0, 0.0), nc - 1.0)
         i0, j0 = min(int(fr), max(nr - 2, 0)), min(int(fc), max(nc - 2, 0))
         i1, j1 = min(i0 + 1, nr - 1), min(j0 + 1, nc - 1)
         ti, tj = fr - i0, fc - j0
@@ -51,10 +51,14 @@ class LocalDB:
     def sample(self, sky: np.ndarray, az_deg: np.ndarray) -> np.ndarray:
         """Skyline ``sky`` (N,) read at azimuths ``az_deg`` (periodic linear interpolation)."""
         n = self.n
-        u = np.mod((az_deg - self.az_start_deg) * n / 360.0, n)
-        k0 = np.floor(u).astype(int) % n
-        t = u - np.floor(u)
-        return sky[k0] * (1 - t) + sky[(k0 + 1) % n] * t
+        u = np.mod((az_deg - self.az_start_deg) * (n / 360.0), n)
+        f = np.floor(u)
+        k0 = f.astype(np.intp)
+        k0[k0 >= n] -= n  # u == n after rounding
+        t = u - f
+        k1 = k0 + 1
+        k1[k1 == n] = 0
+        return sky[k0] + (sky[k1] - sky[k0]) * t
 
 
 @dataclass
@@ -123,7 +127,7 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
 
     def clamp(vv):
         for k, (lo, hi) in bounds.items():
-            vv[k] = float(np.clip(vv[k], lo, hi))
+            vv[k] = min(max(float(vv[k]), lo), hi)
         return vv
 
     def prior_res(vv):
@@ -137,14 +141,19 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
         r, _ = _residual(local, vb, vv, sw)
         return np.concatenate([r, prior_res(vv)])
 
-    def jacobian(vv, r0):
+    def jacobian(vv, r0, central=True):
+        # forward differences while iterating (half the cost), central ones for the reported Jacobian
         J = np.empty((r0.size, len(free)))
         for c, k in enumerate(free):
             h = _DIFF_STEP[k]
-            vp, vm = dict(vv), dict(vv)
+            vp = dict(vv)
             vp[k] += h
-            vm[k] -= h
-            J[:, c] = (full_res(vp) - full_res(vm)) / (2 * h)
+            if central:
+                vm = dict(vv)
+                vm[k] -= h
+                J[:, c] = (full_res(vp) - full_res(vm)) / (2 * h)
+            else:
+                J[:, c] = (full_res(vp) - r0) / h
         return J
 
     v = clamp(v)
@@ -153,7 +162,7 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
     lam = 1e-3
     it = 0
     for it in range(1, max_iter + 1):
-        J = jacobian(v, r)
+        J = jacobian(v, r, central=False)
         A = J.T @ J
         g = J.T @ r
         improved = False
