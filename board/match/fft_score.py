@@ -266,6 +266,45 @@ def lower_bound_full(q: QueryModel, sc: np.ndarray) -> np.ndarray:
     return lb / q.n
 
 
+def lower_bound_full_f32(q: QueryModel, s32: np.ndarray) -> np.ndarray:
+    """:func:`lower_bound_full` computed in float32 (about 3x faster), minus a bound on its error.
+
+    ``s32`` : (P, N) float32 rows (any offset: bin 0 is not used), centred for a tight bound.  Still a
+    lower bound of every heading's exact score of rows ``x`` with ``|s32 - x - const| <= 2 u |s32|``
+    element by element (``x`` rounded to float32 and centred in float32, or the reverse), ``u`` the
+    float32 rounding unit: with ``m`` the magnitudes of the kept bins,
+    ``sqrt(N lb) = ||m_S - m_E||`` (weighted 2-norm over the bins), and the computed magnitudes differ
+    from the exact ones by at most the spectrum's error, ``||dS||_2 <= (g + 2 u) sqrt(N) ||s||_2`` (the
+    transform, ``g = 40 u (log2 N + 2)`` as in :func:`f32_error_bound`, and the rounding of the rows),
+    plus ``g sqrt(N) ||e||_2`` for the query's rounded magnitudes and the squares, roots and sums; the
+    root is lowered by that much.
+    """
+    n = q.n
+    skip = 1 if q.model == "offset" else 2
+
+    def query_terms(q):
+        me, mult = bin_magnitudes(q.spec_we[None], skip)
+        weight = np.zeros(n)  # CCS slots: the real slot of each kept bin carries its multiplicity
+        target = np.zeros(n)
+        m = (n - 1) // 2
+        slots = list(range(2 * skip - 1, 2 * m, 2)) + ([n - 1] if n % 2 == 0 else [])
+        weight[slots] = mult
+        target[slots] = me[0]
+        norm_e = float(np.sqrt((q.e ** 2).sum()))
+        return weight.astype(np.float32), target.astype(np.float32), norm_e
+
+    weight, target, norm_e = q.constant(f"lb_full_f32_{skip}", query_terms)
+    rows = s32.shape[0]
+    sc = cv2.dft(s32, flags=cv2.DFT_ROWS)
+    power = cv2.mulSpectrums(sc, sc, cv2.DFT_ROWS, conjB=True)  # |S_k|^2 in the real slots, 0 elsewhere
+    d = cv2.subtract(cv2.sqrt(power), np.broadcast_to(target, (rows, n)))
+    root = np.sqrt(cv2.multiply(d, d) @ weight, dtype=np.float64)
+    ns = np.sqrt(np.einsum("ij,ij->i", s32, s32).astype(np.float64) * 1.01)  # ||s||_2, raised past its rounding
+    g = 40.0 * _U32 * (np.log2(n) + 2.0)
+    lowered = root * (1.0 - 1e-5) - np.sqrt(n) * ((g + 2.0 * _U32) * ns + g * norm_e)
+    return np.maximum(lowered, 0.0) ** 2 / n
+
+
 def score_block(q: QueryModel, db: np.ndarray, *, want_b: bool = True, sc: np.ndarray | None = None) -> ScoreBlock:
     """Exact scores (degrees^2) of query ``q`` against database skylines ``db`` (P, N) for every shift.
 

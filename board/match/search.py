@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -31,7 +33,7 @@ from board.match.fft_score import (
     approx_scores_f32,
     dft_rows,
     f32_error_bound,
-    lower_bound_full,
+    lower_bound_full_f32,
     score_block,
 )
 from board.skydb import GridSpec, SkyDB, Tile
@@ -43,6 +45,8 @@ log = logging.getLogger(__name__)
 BLOCK = 256
 #: partial panoramas: at most this many surviving skylines wait for exact scoring (bounds the memory)
 HOLD = 2048
+#: threads reading tiles and computing their float32 lower bounds (2 cores on the reference board)
+WORKERS = min(2, os.cpu_count() or 1)
 #: a database skyline with more missing samples than this fraction is excluded from the search
 MAX_MISSING_FRACTION = 0.1
 
@@ -135,13 +139,15 @@ def _tiles_in(db: SkyDB, region: Region) -> list[Tile]:
 
 
 def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_shifts: np.ndarray | None = None,
-           prune: bool = True, prune_factor: float = 4.0, progress=None) -> ScoreMap:
+           prune: bool = True, prune_factor: float = 4.0, progress=None, workers: int | None = None) -> ScoreMap:
     """Score every position of ``region`` (default: the whole grid) against query ``q``.
 
     allowed_shifts : (N,) bool, headings the search may return (None: all)
     prune : skip the inverse DFTs of positions whose exact lower bound exceeds ``prune_factor``
         times the best score so far (full panoramas; the argmin is unchanged, see module doc)
     progress : optional callable(n_done_tiles, n_tiles)
+    workers : threads that read tiles and compute their lower bounds (default WORKERS); the result
+        does not depend on it
     """
     if q.n != db.meta.n_azimuth:
         raise InvalidInputError(f"query has {q.n} azimuth samples, the database {db.meta.n_azimuth}")
@@ -179,9 +185,38 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             el, oi, oj = el[keep], oi[keep], oj[keep]
         return el, oi, oj
 
-    # the next tile is read, decompressed and converted in a thread while this one is scored
-    pool = ThreadPoolExecutor(max_workers=1)
-    pending = pool.submit(load, tiles[0]) if tiles else None
+    def load_bounds(t: Tile):
+        """Worker: read tile ``t`` and compute the float32 lower bounds of its rows (they do not depend on
+        the best score), a block of BLOCK rows at a time so that the working arrays stay in the CPU cache.
+
+        Returns (rows, row offsets, col offsets, lower bounds or None, float32 best scores or None).
+        """
+        el, oi, oj = load(t)
+        if not prune:
+            return el, oi, oj, None, None
+        lb = np.empty(el.shape[0])
+        amin = np.empty(el.shape[0]) if use_f32 else None
+        for b0 in range(0, el.shape[0], BLOCK):
+            s0 = el[b0:b0 + BLOCK]
+            # centred in the tile's own precision (scores are offset-invariant; the bounds allow the rounding)
+            s32 = s0 - (s0 @ ones_n.astype(s0.dtype))[:, None]
+            s32 = s32 if s32.dtype == np.float32 else s32.astype(np.float32)
+            if use_f32:
+                approx = approx_scores_f32(q, s32)
+                if penalty32 is not None:
+                    approx += penalty32
+                amin[b0:b0 + BLOCK] = approx.min(axis=1)
+                lb[b0:b0 + BLOCK] = amin[b0:b0 + BLOCK] - f32_error_bound(q, s32)
+            else:
+                lb[b0:b0 + BLOCK] = lower_bound_full_f32(q, s32)
+        np.maximum(lb, 0.0, out=lb)
+        return el, oi, oj, lb, amin
+
+    def centred(rows: np.ndarray) -> np.ndarray:
+        s = rows.astype(np.float64)
+        s -= (s @ ones_n)[:, None]
+        return s
+
     def exact(s: np.ndarray, sc: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> float:
         """Exact scores of centred rows ``s`` (spectra ``sc``) into ``out``; returns their best score."""
         scores = score_block(q, s, want_b=False, sc=sc).scores
@@ -223,43 +258,50 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             deferred[hi[drop], hj[drop]] = True
             held[:] = [(hs[keep], hi[keep], hj[keep], hl[keep])]
 
-    for it, t in enumerate(tiles):
-        el, oi, oj = pending.result()
-        pending = pool.submit(load, tiles[it + 1]) if it + 1 < len(tiles) else None
-        for b0 in range(0, el.shape[0], BLOCK):
-            s = el[b0:b0 + BLOCK].astype(np.float64)  # a block converted at a time: it stays in the CPU cache
-            bi, bj = oi[b0:b0 + BLOCK], oj[b0:b0 + BLOCK]
-            if use_f32:
-                s -= (s @ ones_n)[:, None]  # scores are offset-invariant: centre the rows
-                # float32 scores minus their error bound: a lower bound of every row's exact best score
-                s32 = s.astype(np.float32)
-                approx = approx_scores_f32(q, s32)
-                if penalty32 is not None:
-                    approx += penalty32
-                amin = approx.min(axis=1).astype(np.float64)
-                lb = np.maximum(amin - f32_error_bound(q, s32), 0.0)
-                k = int(np.argmin(amin))
-                if amin[k] < best:  # the block's likely best row may improve the best: score it exactly now
-                    best = min(best, exact(s[k:k + 1], dft_rows(s[k:k + 1]), bi[k:k + 1], bj[k:k + 1]))
-                    lb[k] = -np.inf  # row k is exact: neither pruned nor held
-                todo = prune_rows(lb, bi, bj, best)
-                todo[lb == -np.inf] = False
-                if todo.any():
-                    hold(s[todo], bi[todo], bj[todo], lb[todo], best)
-                continue
-            sc = dft_rows(s)
-            if not q.full:  # partial query without pruning: centre the rows (the mean from DFT bin 0)
-                s -= (sc[:, 0] / q.n)[:, None]
-            sc[:, 0] = 0.0  # scores are offset-invariant (a full panorama's score reads the spectrum only)
-            if use_prune and np.isfinite(best):
-                todo = prune_rows(lower_bound_full(q, sc), bi, bj, best)
-                if not todo.any():
+    # tiles are read and bounded by ``workers`` threads (OpenCV and numpy release the GIL) while this
+    # thread prunes and scores exactly, in tile order; at most ``workers`` tiles wait (bounded memory)
+    n_workers = max(1, min(WORKERS if workers is None else int(workers), len(tiles)))
+    pool = ThreadPoolExecutor(max_workers=n_workers)
+    queue = deque(pool.submit(load_bounds, t) for t in tiles[:n_workers])
+    try:
+        for it in range(len(tiles)):
+            el, oi, oj, lb, amin = queue.popleft().result()
+            if it + n_workers < len(tiles):
+                queue.append(pool.submit(load_bounds, tiles[it + n_workers]))
+            for b0 in range(0, el.shape[0], BLOCK):
+                blk = slice(b0, b0 + BLOCK)
+                bi, bj = oi[blk], oj[blk]
+                if use_f32:
+                    blb, bam = lb[blk], amin[blk]
+                    k = int(np.argmin(bam))
+                    exact_k = bam[k] < best  # the block's likely best row may improve the best: score it now
+                    if exact_k:
+                        s = centred(el[b0 + k:b0 + k + 1])
+                        best = min(best, exact(s, dft_rows(s), bi[k:k + 1], bj[k:k + 1]))
+                        blb = blb.copy()
+                        blb[k] = -np.inf  # keeps its exact score
+                    todo = prune_rows(blb, bi, bj, best)
+                    if exact_k:
+                        todo[k] = False  # row k is exact: neither pruned nor held
+                    if todo.any():
+                        hold(centred(el[blk][todo]), bi[todo], bj[todo], blb[todo], best)
                     continue
-                s, sc, bi, bj = s[todo], sc[todo], bi[todo], bj[todo]
-            best = min(best, exact(s, sc, bi, bj))
-        if progress is not None:
-            progress(it + 1, len(tiles))
-    pool.shutdown()
+                if use_prune and np.isfinite(best):
+                    todo = prune_rows(lb[blk], bi, bj, best)
+                    if not todo.any():
+                        continue
+                    s, bi, bj = el[blk][todo].astype(np.float64), bi[todo], bj[todo]
+                else:
+                    s = el[blk].astype(np.float64)
+                sc = dft_rows(s)
+                if not q.full:  # partial query without pruning: centre the rows (the mean from DFT bin 0)
+                    s -= (sc[:, 0] / q.n)[:, None]
+                sc[:, 0] = 0.0  # scores are offset-invariant (a full panorama's score reads the spectrum only)
+                best = min(best, exact(s, sc, bi, bj))
+            if progress is not None:
+                progress(it + 1, len(tiles))
+    finally:
+        pool.shutdown(cancel_futures=True)
     if held:
         s, bi, bj, lb = (np.concatenate(x) for x in zip(*held))
         todo = prune_rows(lb, bi, bj, best)
@@ -276,8 +318,7 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             el, oi, oj = load(t)
             sel = again[oi, oj]
             if sel.any():
-                s = el[sel].astype(np.float64)
-                s -= (s @ ones_n)[:, None]
+                s = centred(el[sel])
                 exact(s, dft_rows(s), oi[sel], oj[sel])
     out.n_pruned = int((np.isfinite(out.score) & ~out.exact).sum())
     if not np.isfinite(out.score).any():
