@@ -38,6 +38,14 @@ RELEVEL_KEEP = 10.0
 CANDIDATE_FACTOR = 3.0
 #: final refinement weighted by the grid error at each azimuth (see _reweighted)
 REWEIGHT = os.environ.get("SKYLOC_NO_REWEIGHT", "") == ""
+#: reweighting: the noise variance is at least this fraction of the unweighted mean squared residual,
+#: and at least NOISE_FLOOR_DEG squared
+NOISE_FLOOR_FRACTION = 0.1
+NOISE_FLOOR_DEG = 0.02
+#: 1-sigma floor of the position (grid steps): the interpolated database is not trusted beyond it
+POSITION_SIGMA_FLOOR_STEPS = 0.1
+#: the weighted refinement interpolates with parallax when the database stores horizon distances
+PARALLAX = os.environ.get("SKYLOC_NO_PARALLAX", "") == ""
 
 
 @dataclass
@@ -125,11 +133,14 @@ def _validate(db: SkyDB, sky: Skyline) -> None:
                     db.path, db.n_tiles_done(), len(db.tiles))
 
 
-def _local_db(db: SkyDB, row: int, col: int, half: int = 2) -> LocalDB:
+def _local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = False) -> LocalDB:
+    """Node skylines within ``half`` nodes of (row, col); with ``parallax`` and stored horizon distances,
+    a window that interpolates with parallax (see :mod:`board.pose.parallax`)."""
     g = db.grid
     r0, c0 = max(row - half, 0), max(col - half, 0)
     r1, c1 = min(row + half + 1, g.ny), min(col + half + 1, g.nx)
-    el = db.read_tile(Tile(-1, -1, r0, c0, r1 - r0, c1 - c0)).astype(np.float64)
+    win = Tile(-1, -1, r0, c0, r1 - r0, c1 - c0)
+    el = db.read_tile(win).astype(np.float64)
     flat = el.reshape(-1, el.shape[2])
     fill_missing(flat)
     if not np.isfinite(flat).all():
@@ -137,7 +148,11 @@ def _local_db(db: SkyDB, row: int, col: int, half: int = 2) -> LocalDB:
         own = flat[(row - r0) * (c1 - c0) + (col - c0)]
         bad = ~np.isfinite(flat).all(axis=1)
         flat[bad] = own
-    return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg)
+    dist = db.read_distance(win) if parallax and db.meta.has_distance else None
+    if dist is None:
+        return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg)
+    return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg, dist=dist.astype(np.float64),
+                   cell_m=(g.geotransform[1], g.geotransform[5]))
 
 
 def _candidates(smap: ScoreMap, k: int, sep: int) -> list[tuple[int, int]]:
@@ -397,6 +412,23 @@ def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.n
     if "row" not in ref.free or nr < 3 or nc < 3:
         return np.zeros((len(ref.free),) * 2)
     v = ref.values
+    if local.parallax:
+        # the corners' re-projections as realisations of the interpolation's error
+        try:
+            pinv = np.linalg.inv(info_unscaled)
+        except np.linalg.LinAlgError:
+            return np.zeros((len(ref.free),) * 2)
+        preds, w = local.corner_predictions(v["row"], v["col"])
+        dev = np.stack([local.sample(p, ref.enu_az_deg) for p in preds])
+        dev -= w @ dev
+        out = np.zeros((len(ref.free),) * 2)
+        for k in range(dev.shape[0]):
+            ej = dev[k] - dev[k].mean()
+            if ref.weights is not None:
+                ej = ej * np.sqrt(ref.weights)
+            delta = pinv @ (ref.jac.T @ ej)
+            out += w[k] * np.outer(delta, delta)
+        return out
     i = int(np.clip(round(v["row"] - local.row0), 1, nr - 2))
     j = int(np.clip(round(v["col"] - local.col0), 1, nc - 2))
     e = local.el
@@ -444,6 +476,21 @@ def _grid_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndarr
     return MIDCELL_FACTOR ** 2 * acc / 4.0
 
 
+def _model_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> np.ndarray:
+    """Per-sample variance (degrees^2) of the interpolated database skyline at (row, col), ENU azimuths.
+
+    With parallax interpolation: the weighted spread of the four corners' re-projections about
+    their blend; otherwise the bilinear grid error of :func:`_grid_error_samples`.
+    """
+    if not local.parallax:
+        return _grid_error_samples(local, row, col, az_deg)
+    preds, w = local.corner_predictions(row, col)
+    dev = np.stack([local.sample(p, az_deg) for p in preds])
+    dev -= w @ dev
+    dev -= dev.mean(axis=1, keepdims=True)  # the mean offset is fitted
+    return w @ (dev * dev)
+
+
 def _grid_error_var(local: LocalDB, ref: Refined) -> float:
     """Mean per-sample grid-error variance (degrees^2) at the fix (see :func:`_grid_error_samples`).
 
@@ -489,10 +536,12 @@ def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region:
     for _ in range(iterations):
         v = cur.values
         r0, c0 = int(round(v["row"])), int(round(v["col"]))
-        local = _local_db(db, r0, c0, half=3)
-        g2 = _grid_error_samples(local, v["row"], v["col"], cur.enu_az_deg)
+        local = _local_db(db, r0, c0, half=3, parallax=PARALLAX)
+        g2 = _model_error_samples(local, v["row"], v["col"], cur.enu_az_deg)
         res_unw = cur.residual if cur.weights is None else cur.residual / np.sqrt(cur.weights)
         s_n = _noise_given_weights(res_unw ** 2, g2, max(res_unw.size - len(free) - 1, 1))
+        # the model-error estimate must not explain the whole residual away (weights would all vanish)
+        s_n = max(s_n, NOISE_FLOOR_FRACTION * float(np.mean(res_unw ** 2)), NOISE_FLOOR_DEG ** 2)
         w_abs = s_n / (s_n + g2)
         bounds = {"row": (max(r0 - 2.5, lo_r), min(r0 + 2.5, hi_r)), "col": (max(c0 - 2.5, lo_c), min(c0 + 2.5, hi_c))}
         cur = refine(local, theta, el, dict(v), free=free, tilt_prior=tilt_prior, noise_deg=math.sqrt(s_n),
@@ -527,7 +576,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     if "row" in idx:
         T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)
         sub = cov[np.ix_([idx["row"], idx["col"]], [idx["row"], idx["col"]])]
-        cov_xy = T @ sub @ T.T
+        cov_xy = T @ sub @ T.T + np.eye(2) * (POSITION_SIGMA_FLOOR_STEPS * step) ** 2
     rms = math.sqrt(ref.cost / n)
     status, reason = "ok", ""
     far_mass, ratio = float("nan"), float("nan")

@@ -15,38 +15,106 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from board.conventions import rotation_enu_from_camera
+from board.pose.parallax import Reprojector
 from board.pose.sphere import body_from_rel_az_el
 
 log = logging.getLogger(__name__)
 
 PARAMS = ("row", "col", "heading", "pitch", "roll")
 _DIFF_STEP = {"row": 0.02, "col": 0.02, "heading": 0.02, "pitch": 0.02, "roll": 0.02}
+#: steps of the reported Jacobian (grid nodes, degrees): secants over a quarter node, so that the kinks of
+#: the interpolated skyline (cell edges, occlusion changes) do not make the covariance spuriously small
+_REPORT_STEP = {"row": 0.25, "col": 0.25, "heading": 0.05, "pitch": 0.05, "roll": 0.05}
 
 
 @dataclass
 class LocalDB:
-    """A window of database skylines: ``el`` (nr, nc, N) degrees at grid rows/cols from (row0, col0)."""
+    """A window of database skylines: ``el`` (nr, nc, N) degrees at grid rows/cols from (row0, col0).
+
+    With ``dist`` (horizon distances, metres, same shape) and ``cell_m`` (metres per column step
+    east, metres per row step north: the geotransform's x step and y step), :meth:`skyline_at`
+    interpolates with parallax (:mod:`board.pose.parallax`) instead of blending the skylines.
+    """
 
     el: np.ndarray
     row0: int
     col0: int
     az_start_deg: float
+    dist: np.ndarray | None = None
+    cell_m: tuple[float, float] | None = None
+    _heights: dict = field(default_factory=dict, repr=False)
+    _last: tuple = field(default=(None, None), repr=False)
 
     @property
     def n(self) -> int:
         return self.el.shape[2]
 
-    def skyline_at(self, row: float, col: float) -> np.ndarray:
-        """(N,) bilinear interpolation of the node skylines at fractional (row, col) (clamped to the window)."""
+    @property
+    def parallax(self) -> bool:
+        return self.dist is not None and self.cell_m is not None
+
+    def _corners(self, row: float, col: float):
         nr, nc, _ = self.el.shape
         fr = min(max(float(row) - self.row0, 0.0), nr - 1.0)
         fc = min(max(float(col) - self.col0, 0.0), nc - 1.0)
         i0, j0 = min(int(fr), max(nr - 2, 0)), min(int(fc), max(nc - 2, 0))
         i1, j1 = min(i0 + 1, nr - 1), min(j0 + 1, nc - 1)
+        return fr, fc, i0, j0, i1, j1
+
+    def skyline_at(self, row: float, col: float) -> np.ndarray:
+        """(N,) skyline at fractional (row, col) (clamped to the window), degrees.
+
+        Bilinear blend of the four surrounding node skylines, or with :attr:`parallax` the blend of
+        their re-projections to the position (horizons moved by their distance, eye heights
+        estimated from the skylines); azimuths no re-projection covers keep the bilinear value.
+        """
+        key = (float(row), float(col))
+        if self._last[0] == key:
+            return self._last[1]
+        fr, fc, i0, j0, i1, j1 = self._corners(row, col)
         ti, tj = fr - i0, fc - j0
         e = self.el
-        return ((1 - ti) * ((1 - tj) * e[i0, j0] + tj * e[i0, j1])
-                + ti * ((1 - tj) * e[i1, j0] + tj * e[i1, j1]))
+        out = ((1 - ti) * ((1 - tj) * e[i0, j0] + tj * e[i0, j1])
+               + ti * ((1 - tj) * e[i1, j0] + tj * e[i1, j1]))
+        if self.parallax:
+            out = self._reprojected(fr, fc, (i0, j0, i1, j1), out)
+        self._last = (key, out)
+        return out
+
+    def _reprojected(self, fr: float, fc: float, cell: tuple[int, int, int, int], bilinear: np.ndarray) -> np.ndarray:
+        i0, j0, i1, j1 = cell
+        corners = [(i0, j0), (i0, j1), (i1, j0), (i1, j1)]
+        ti, tj = fr - i0, fc - j0
+        w = [(1 - ti) * (1 - tj), (1 - ti) * tj, ti * (1 - tj), ti * tj]
+        sx, sy = self.cell_m
+        rep = self._heights.get("rep")
+        if rep is None:
+            rep = self._heights["rep"] = Reprojector(self.n, self.az_start_deg)
+        z = self._heights.get(cell)
+        if z is None:
+            offs = [(b * sx, a * sy) for a, b in corners]
+            z = self._heights[cell] = rep.relative_heights([self.el[a, b] for a, b in corners],
+                                                           [self.dist[a, b] for a, b in corners], offs)
+        zp = float(np.dot(w, z))
+        acc = np.zeros(self.n)
+        preds = []
+        for k, (a, b) in enumerate(corners):
+            sk = rep.skyline(self.el[a, b], self.dist[a, b], (fc - b) * sx, (fr - a) * sy, zp - z[k])
+            sk = np.where(np.isfinite(sk), sk, bilinear)
+            preds.append(sk)
+            acc += w[k] * sk
+        self._heights["last_preds"] = ((fr, fc), np.array(preds), np.array(w))
+        return acc
+
+    def corner_predictions(self, row: float, col: float) -> tuple[np.ndarray, np.ndarray]:
+        """Parallax mode: the four corners' re-projected skylines at (row, col), (4, N) degrees, and their
+        bilinear weights (4,).  Their spread about the blend measures the interpolation's own error."""
+        if not self.parallax:
+            raise ValueError("corner predictions need horizon distances (parallax mode)")
+        self._last = (None, None)
+        self.skyline_at(row, col)
+        _, preds, w = self._heights["last_preds"]
+        return preds, w
 
     def sample(self, sky: np.ndarray, az_deg: np.ndarray) -> np.ndarray:
         """Skyline ``sky`` (N,) read at azimuths ``az_deg`` (periodic linear interpolation)."""
@@ -142,10 +210,10 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
         return np.concatenate([r, prior_res(vv)])
 
     def jacobian(vv, r0, central=True):
-        # forward differences while iterating (half the cost), central ones for the reported Jacobian
+        # forward differences while iterating (half the cost), central secants for the reported Jacobian
         J = np.empty((r0.size, len(free)))
         for c, k in enumerate(free):
-            h = _DIFF_STEP[k]
+            h = (_REPORT_STEP if central else _DIFF_STEP)[k]
             vp = dict(vv)
             vp[k] += h
             if central:
