@@ -2,11 +2,11 @@
 
 The search evaluates :func:`board.match.fft_score.score_block` for every position of a region of
 the grid and keeps, per position, the best score over the allowed headings and that heading.
-Memory is bounded by one database tile plus the (region-sized) score map: the database is never
-loaded whole.
+Memory is bounded by a few database tiles plus the (region-sized) score map: the database is never
+loaded whole (unless the reader caches a small one, see :class:`board.skydb.SkyDB`).
 
-Pruning is exact: for full panoramas the Parseval bound of
-:func:`board.match.fft_score.lower_bound_full`, for partial ones the float32 scores of
+Pruning is exact: for full panoramas the Parseval bound computed in float32 minus its rounding
+bound (:func:`board.match.fft_score.lower_bound_full_f32`), for partial ones the float32 scores of
 :func:`board.match.fft_score.approx_scores_f32` minus their error bound
 (:func:`board.match.fft_score.f32_error_bound`), are lower bounds of the score at every heading, so
 a position whose bound exceeds ``prune_factor`` times the best score can never be the argmin, nor
@@ -14,6 +14,11 @@ within that factor of it.  Such positions keep their bound (``exact`` False), wh
 makes the confidence analysis more cautious.  Partial panoramas: the surviving skylines are held
 (at most HOLD) and scored in float64 against the final best score; on overflow the ones with the
 largest bounds are dropped and their tiles read again at the end if they still survive.
+
+The bounds do not depend on the best score, so WORKERS threads read tiles and compute them while
+the calling thread prunes and scores exactly, tile after tile in a fixed order: the result does
+not depend on the number of threads.  Work is done in blocks of BLOCK rows so that the working
+arrays of a block stay in the CPU cache.
 """
 from __future__ import annotations
 
