@@ -371,9 +371,10 @@ class SkyDB:
     """Read-only access to a skyline database, streamed tile by tile (bounded memory).
 
     Chunks are read straight from their files (zarr for any layout this module does not write).
-    A complete database whose whole elevation array fits in ``cache_mb`` is kept in memory as int16
-    chunks as they are read, so repeated queries on one site skip the disk and the decompression;
-    a larger one is streamed on every query and never cached.
+    A complete database whose whole elevation array (plus the distance array, if stored) fits in
+    ``cache_mb`` is kept in memory as int16/uint16 chunks as they are read, so repeated queries on
+    one site skip the disk and the decompression; a larger one is streamed on every query and never
+    cached (a 7 x 7 km grid at 5 m holds 1.4 GB of elevations).
     """
 
     def __init__(self, path: Path, meta: SkyDBMeta, group, complete: bool, *,
@@ -385,15 +386,17 @@ class SkyDB:
         self.tiles = plan_tiles(meta.grid, meta.tile_size)
         self._readers = {name: _ChunkReader.for_array(Path(path), name) for name in ("elevation", "distance")}
         g = meta.grid
-        elevation_mb = g.ny * g.nx * meta.n_azimuth * 2 / 1e6
-        #: int16 elevation chunks kept in memory (chunk index -> array), or None when not caching
-        self._cache: dict | None = {} if complete and 0 < elevation_mb <= cache_mb else None
+        array_mb = g.ny * g.nx * meta.n_azimuth * 2 / 1e6  # int16 elevations (and as much for uint16 distances)
+        total_mb = array_mb * (2 if meta.has_distance else 1)
+        #: chunks kept in memory ((array name, chunk row, chunk col) -> int16/uint16 array), or None
+        self._cache: dict | None = {} if complete and 0 < total_mb <= cache_mb else None
 
     @classmethod
     def open(cls, path: str | os.PathLike, *, cache_mb: float = DEFAULT_CACHE_MB) -> "SkyDB":
         """Open and validate a store; FormatError with the reason if it cannot be read.
 
-        cache_mb : keep the int16 elevations in memory (MB) when the whole array fits; 0 never caches
+        cache_mb : keep the elevations (and distances) in memory when the whole arrays fit in this many MB;
+            0 never caches
         """
         zarr = _zarr()
         path = Path(path)
@@ -448,14 +451,14 @@ class SkyDB:
             except Exception as exc:
                 raise FormatError(f"{self.path}: cannot read tile {tile.key} of {name} "
                                   f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
-        cache = self._cache if name == "elevation" else None
+        cache = self._cache
         ch, cw = reader.chunks[0], reader.chunks[1]
         out = np.empty((tile.nrows, tile.ncols, reader.chunks[2]), dtype=reader.dtype)
         if out.size == 0:
             return out
         for ci in range(tile.row0 // ch, (r1 - 1) // ch + 1):
             for cj in range(tile.col0 // cw, (c1 - 1) // cw + 1):
-                chunk = None if cache is None else cache.get((ci, cj))
+                chunk = None if cache is None else cache.get((name, ci, cj))
                 if chunk is None:
                     try:
                         chunk = reader.chunk((ci, cj, 0))
@@ -463,7 +466,7 @@ class SkyDB:
                         raise FormatError(f"cannot read tile {tile.key} of {name}: {exc}") from exc
                     if cache is not None:  # edge chunks trimmed to the array: the cache holds the array's size
                         chunk = np.ascontiguousarray(chunk[:reader.shape[0] - ci * ch, :reader.shape[1] - cj * cw])
-                        cache[(ci, cj)] = chunk
+                        cache[(name, ci, cj)] = chunk
                 a0, a1 = max(tile.row0, ci * ch), min(r1, (ci + 1) * ch)
                 b0, b1 = max(tile.col0, cj * cw), min(c1, (cj + 1) * cw)
                 out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
@@ -472,7 +475,7 @@ class SkyDB:
 
     @property
     def cached_mb(self) -> float:
-        """MB of int16 elevations held in memory by this reader (0 when not caching)."""
+        """MB of elevations (and distances) held in memory by this reader (0 when not caching)."""
         return 0.0 if not self._cache else sum(c.nbytes for c in self._cache.values()) / 1e6
 
     def read_tile_raw(self, tile: Tile) -> np.ndarray:

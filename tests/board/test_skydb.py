@@ -105,7 +105,7 @@ def _filled_db(tmp_path, tile=4, **kw):
     truth = rng.uniform(-5, 30, size=(10, 10, 36)).astype(np.float32)
     for t in w.tiles:
         sl = np.s_[t.row0:t.row0 + t.nrows, t.col0:t.col0 + t.ncols]
-        w.write_tile(t, truth[sl])
+        w.write_tile(t, truth[sl], distance_m=np.full(truth[sl].shape, 1234.0) if w.meta.has_distance else None)
     return w.finalize(), truth
 
 
@@ -133,14 +133,18 @@ def test_direct_chunk_reads_equal_zarr(tmp_path, cache_mb):
     assert db.cached_mb == pytest.approx(ref.nbytes / 1e6 if cache_mb else 0.0)
 
 
-def test_cache_is_bounded_and_only_for_complete_stores(tmp_path):
-    db, _ = _filled_db(tmp_path)
-    array_mb = 10 * 10 * 36 * 2 / 1e6
-    small = SkyDB.open(db.path, cache_mb=array_mb * 0.99)  # the array does not fit: streamed, nothing kept
+@pytest.mark.parametrize("has_distance", [False, True])
+def test_cache_is_bounded_and_only_for_complete_stores(tmp_path, has_distance):
+    db, _ = _filled_db(tmp_path, has_distance=has_distance)
+    array_mb = 10 * 10 * 36 * 2 / 1e6 * (2 if has_distance else 1)  # elevations (and distances)
+    small = SkyDB.open(db.path, cache_mb=array_mb * 0.99)  # the arrays do not fit: streamed, nothing kept
     small.read_all()
     assert small.cached_mb == 0.0
     fits = SkyDB.open(db.path, cache_mb=array_mb)
     fits.read_all()
+    for t in fits.tiles:
+        d = fits.read_distance(t)
+        assert d is None or np.all(d == 1230.0)
     assert fits.cached_mb == pytest.approx(array_mb)
     w = SkyDBWriter.create(tmp_path / "partial.zarr", _meta())
     w.write_tile(w.tiles[0], np.zeros((4, 4, 36)))
