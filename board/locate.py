@@ -600,7 +600,8 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         far_mass, ratio = lk.far_mass, lk.ambiguity_ratio
     sig_x, sig_y = math.sqrt(max(cov_xy[0, 0], 0)), math.sqrt(max(cov_xy[1, 1], 0))
     if rms > th.max_rms_deg:
-        status, reason = "failed", (f"the best match leaves {rms:.2f} deg RMS residual (> {th.max_rms_deg}): the "
+        status, reason = "failed", (f"the best match leaves {rms:.2f} deg RMS residual beyond the database's "
+                                    f"interpolation error (> {th.max_rms_deg}): the "
                                     "skyline does not fit this database (wrong area, or a bad extraction)")
     elif math.isfinite(far_mass) and far_mass > th.max_far_mass:
         status, reason = "ambiguous", (f"{far_mass:.0%} of the likelihood lies more than "

@@ -29,14 +29,15 @@ CHI2_2D_95 = 5.991464547107979
 class Thresholds:
     """Decision thresholds of the status (defaults documented in docs/matching.md).
 
-    max_rms_deg : a best match with a larger RMS residual is ``failed`` (the skyline is not in this database)
+    max_rms_deg : a best match with a larger RMS residual (weighted: beyond the database's own interpolation
+        error at the fix) is ``failed`` (the skyline is not in this database, or the extraction is wrong)
     max_far_mass : posterior mass farther than the ambiguity radius above which the fix is ``ambiguous``
     ambiguity_radius_steps : radius (grid steps) beyond which a second minimum is a different place
     max_sigma_steps : a 1-sigma position error above this many grid steps is ``ambiguous``
     max_sigma_heading_deg : a 1-sigma heading error above this is ``ambiguous``
     """
 
-    max_rms_deg: float = 1.5
+    max_rms_deg: float = 0.75
     max_far_mass: float = 0.01
     ambiguity_radius_steps: float = 5.0
     max_sigma_steps: float = 3.0
