@@ -222,6 +222,14 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
         s -= (s @ ones_n)[:, None]
         return s
 
+    def exact_rows(s: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> float:
+        """Exact scores of centred rows ``s`` into ``out``, BLOCK rows at a time; returns their best score."""
+        b = np.inf
+        for c0 in range(0, s.shape[0], BLOCK):
+            r = s[c0:c0 + BLOCK]
+            b = min(b, exact(r, dft_rows(r), bi[c0:c0 + BLOCK], bj[c0:c0 + BLOCK]))
+        return b
+
     def exact(s: np.ndarray, sc: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> float:
         """Exact scores of centred rows ``s`` (spectra ``sc``) into ``out``; returns their best score."""
         scores = score_block(q, s, want_b=False, sc=sc).scores
@@ -312,7 +320,7 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
         todo = prune_rows(lb, bi, bj, best)
         if todo.any():
             s, bi, bj = s[todo], bi[todo], bj[todo]
-            best = min(best, exact(s, dft_rows(s), bi, bj))
+            best = min(best, exact_rows(s, bi, bj))
     again = deferred & (out.score <= prune_factor * best)
     if again.any():
         log.info("scoring %d deferred positions exactly (tiles read again)", int(again.sum()))
@@ -324,7 +332,7 @@ def search(db: SkyDB, q: QueryModel, *, region: Region | None = None, allowed_sh
             sel = again[oi, oj]
             if sel.any():
                 s = centred(el[sel])
-                exact(s, dft_rows(s), oi[sel], oj[sel])
+                exact_rows(s, oi[sel], oj[sel])
     out.n_pruned = int((np.isfinite(out.score) & ~out.exact).sum())
     if not np.isfinite(out.score).any():
         raise NoDataError("no database skyline in the search area could be scored (missing tiles or "
