@@ -36,6 +36,9 @@ RELEVEL_DEG = 1.5
 RELEVEL_KEEP = 10.0
 #: candidates whose coarse score exceeds this factor times the best are not refined
 CANDIDATE_FACTOR = 3.0
+#: nodes (row, col offsets from the fix's node) the multistart refinement starts from: the node and its
+#: four edge neighbours (the 4 diagonal ones changed no fix once the weighted refinement follows)
+MULTISTART_OFFSETS = ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1))
 #: final refinement weighted by the grid error at each azimuth (see _reweighted)
 REWEIGHT = os.environ.get("SKYLOC_NO_REWEIGHT", "") == ""
 #: reweighting: the noise variance is at least this fraction of the unweighted mean squared residual,
@@ -43,8 +46,11 @@ REWEIGHT = os.environ.get("SKYLOC_NO_REWEIGHT", "") == ""
 NOISE_FLOOR_FRACTION = 0.1
 NOISE_FLOOR_DEG = 0.02
 #: 1-sigma floor of the position (grid steps): the interpolated database is not trusted beyond it
-POSITION_SIGMA_FLOOR_STEPS = 0.1
+POSITION_SIGMA_FLOOR_STEPS = 0.2
 #: the weighted refinement interpolates with parallax when the database stores horizon distances
+#: share of the bilinear grid-error variance kept as model error after re-projection: (0.29 / 0.45)^2,
+#: the near-horizon RMS of the two interpolations against ray-marched truth (docs/matching.md)
+PARALLAX_RESIDUAL_SHARE = 0.4
 PARALLAX = os.environ.get("SKYLOC_NO_PARALLAX", "") == ""
 
 
@@ -215,7 +221,7 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
 
 def _multistart(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, noise_deg: float, region: Region,
                 half: int = 3) -> tuple[Refined, LocalDB] | None:
-    """Refine again from the fix's node and its 8 neighbours (same angles); the lowest cost wins.
+    """Refine again from the fix's node and its edge neighbours (same angles); the lowest cost wins.
 
     The bilinearly interpolated database makes the cost piecewise smooth in position, with kinks on
     the grid lines and small local minima near close horizons: one start can stop a few metres
@@ -234,21 +240,21 @@ def _multistart(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, noise_d
     m = half - 0.5
     bounds = {"row": (max(r0 - m, lo_r), min(r0 + m, hi_r)), "col": (max(c0 - m, lo_c), min(c0 + m, hi_c))}
     best = None
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            init = dict(v0, row=float(r0 + dr), col=float(c0 + dc))
-            if not (bounds["row"][0] <= init["row"] <= bounds["row"][1]
-                    and bounds["col"][0] <= init["col"] <= bounds["col"][1]):
-                continue
-            r = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
-            if best is None or r.cost < best.cost:
-                best = r
+    for dr, dc in MULTISTART_OFFSETS:
+        init = dict(v0, row=float(r0 + dr), col=float(c0 + dc))
+        if not (bounds["row"][0] <= init["row"] <= bounds["row"][1]
+                and bounds["col"][0] <= init["col"] <= bounds["col"][1]):
+            continue
+        r = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
+        if best is None or r.cost < best.cost:
+            best = r
     return None if best is None else (best, local)
 
 
 def _competitive(smap: ScoreMap, factor: float) -> Region:
     """The positions of ``smap`` scoring within ``factor`` of its best, as a masked region (grid indices)."""
-    keep = smap.score <= factor * float(np.min(smap.score)) + 1e-12
+    # pruned positions hold lower bounds above the pruning factor times the best: they cannot compete
+    keep = smap.exact & (smap.score <= factor * float(np.min(smap.score)) + 1e-12)
     rows, cols = np.flatnonzero(keep.any(axis=1)), np.flatnonzero(keep.any(axis=0))
     r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     return Region(smap.region.row0 + int(r0), smap.region.col0 + int(c0), int(r1 - r0), int(c1 - c0),
@@ -372,11 +378,6 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
         if polished is not None and polished[0].cost < best[0].cost:
             log.info("multistart refinement: cost %.3g -> %.3g deg^2", best[0].cost, polished[0].cost)
             best = polished
-        if REWEIGHT:
-            rew = _reweighted(db, best[0], theta, el, free=PARAMS if model == "tilt" else ("row", "col", "heading"),
-                              tilt_prior=tilt_prior, region=smap.region)
-            if rew is not None:
-                best = rew
         return best
 
     q, smap = coarse(level)
@@ -392,6 +393,11 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
             q, smap, ref, local = q2, smap2, ref2, local2
         elif smap2 is not None:
             smap = smap2
+    if REWEIGHT and smap is not None:
+        rew = _reweighted(db, ref, theta, el, free=PARAMS if model == "tilt" else ("row", "col", "heading"),
+                          tilt_prior=tilt_prior, region=smap.region)
+        if rew is not None:
+            ref, local = rew
     return _make_fix(db, skyline, q, smap, ref, local, mode=mode, th=th, t0=t0, region=region)
 
 
@@ -488,7 +494,9 @@ def _model_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndar
     dev = np.stack([local.sample(p, az_deg) for p in preds])
     dev -= w @ dev
     dev -= dev.mean(axis=1, keepdims=True)  # the mean offset is fitted
-    return w @ (dev * dev)
+    # the corners share errors their spread cannot show (quantised distances, terrain hidden at every
+    # corner): keep the share of the bilinear grid error that re-projection left on the benchmark terrain
+    return w @ (dev * dev) + PARALLAX_RESIDUAL_SHARE * _grid_error_samples(local, row, col, az_deg)
 
 
 def _grid_error_var(local: LocalDB, ref: Refined) -> float:
@@ -586,7 +594,10 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         s2c = smin / max(q.n_seen - q.n_params, 1) * infl
         # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp, and
         # grid nodes near the truth elsewhere may miss it by the grid's interpolation error
-        s2c = max(s2c, (s2 + _grid_error_var(local, ref)) * infl)
+        # (the coarse scores are unweighted sums: compare with the unweighted residual of the fix)
+        res_unw = ref.residual if ref.weights is None else ref.residual / np.sqrt(ref.weights)
+        s2_unw = float(res_unw @ res_unw) / max(n - k, 1)
+        s2c = max(s2c, (s2_unw + _grid_error_var(local, ref)) * infl)
         r0, c0 = smap.region.row0, smap.region.col0
         # each position's best heading: its likelihood-weighted spread about the fix widens the heading sigma
         hmap = heading_deg(smap.shift, n=db.meta.n_azimuth, db_start_deg=db.meta.azimuth_start_deg,
