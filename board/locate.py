@@ -526,13 +526,16 @@ def _noise_given_weights(r2: np.ndarray, g2: np.ndarray, dof: int) -> float:
 
 def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region: Region,
                 iterations: int = 2) -> tuple[Refined, LocalDB] | None:
-    """Refine again with each sample weighted by 1 / (noise + grid error at its azimuth).
+    """Refine again with each sample weighted by 1 / (noise + model error at its azimuth).
 
-    Azimuths whose horizon is close change fast between grid nodes, so the interpolated database
-    is least reliable there; down-weighting them (iteratively reweighted least squares, the noise
-    variance solved so that the weighted chi-square equals its degrees of freedom) lets the far,
-    well-represented horizon fix the position.  The weights passed to :func:`refine` are relative
-    (1 where the grid error is nil) so that its cost still estimates the noise variance.
+    The database is interpolated with parallax when it stores horizon distances
+    (:mod:`board.pose.parallax`); the model error is :func:`_model_error_samples`.  Azimuths whose
+    horizon is close change fast between grid nodes, so the interpolated database is least
+    reliable there; down-weighting them (iteratively reweighted least squares, the noise variance
+    solved so that the weighted chi-square equals its degrees of freedom) lets the well-represented
+    horizon fix the position.  The weights passed to :func:`refine` are relative (1 where the model
+    error is nil) so that its cost still estimates the noise variance.  Position stays within
+    +-2.5 nodes of the starting fix.  Returns None when the position is not free.
     """
     if "row" not in free:
         return None
