@@ -51,6 +51,9 @@ POSITION_SIGMA_FLOOR_STEPS = 0.2
 #: share of the bilinear grid-error variance kept as model error after re-projection: (0.29 / 0.45)^2,
 #: the near-horizon RMS of the two interpolations against ray-marched truth (docs/matching.md)
 PARALLAX_RESIDUAL_SHARE = 0.4
+#: iteration limit and relative cost tolerance of each weighted refinement
+REWEIGHT_MAX_ITER = 12
+REWEIGHT_FTOL = 1e-5
 PARALLAX = os.environ.get("SKYLOC_NO_PARALLAX", "") == ""
 
 
@@ -555,8 +558,9 @@ def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region:
         s_n = max(s_n, NOISE_FLOOR_FRACTION * float(np.mean(res_unw ** 2)), NOISE_FLOOR_DEG ** 2)
         w_abs = s_n / (s_n + g2)
         bounds = {"row": (max(r0 - 2.5, lo_r), min(r0 + 2.5, hi_r)), "col": (max(c0 - 2.5, lo_c), min(c0 + 2.5, hi_c))}
+        # the re-projected skyline has kinks (occlusion changes): stop once steps gain little
         cur = refine(local, theta, el, dict(v), free=free, tilt_prior=tilt_prior, noise_deg=math.sqrt(s_n),
-                     bounds=bounds, weights=w_abs)
+                     bounds=bounds, weights=w_abs, max_iter=REWEIGHT_MAX_ITER, ftol=REWEIGHT_FTOL)
     return cur, local
 
 

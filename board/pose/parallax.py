@@ -37,24 +37,24 @@ def envelope_on_grid(az_deg: np.ndarray, el_deg: np.ndarray, valid: np.ndarray, 
     """
     step = 360.0 / n
     out = np.full(n, -np.inf)
-    a0, a1 = az_deg, np.roll(az_deg, -1)
-    e0, e1 = el_deg, np.roll(el_deg, -1)
-    ok = valid & np.roll(valid, -1)
+    nxt = np.r_[1:az_deg.size, 0]  # the vertex after each (closed line)
+    ok = valid & valid[nxt]
+    a0, e0 = az_deg[ok], el_deg[ok]
+    a1, e1 = az_deg[nxt][ok], el_deg[nxt][ok]
     da = np.mod(a1 - a0 + 180.0, 360.0) - 180.0
-    a0, da, e0, e1 = a0[ok], da[ok], e0[ok], e1[ok]
     fwd = da >= 0
-    lo = np.where(fwd, a0, a0 + da)
+    lo = np.where(fwd, a0, a1)
     span = np.abs(da)
-    elo, ehi = np.where(fwd, e0, e1), np.where(fwd, e1, e0)
+    elo = np.where(fwd, e0, e1)
+    slope = (np.where(fwd, e1, e0) - elo) / np.maximum(span, 1e-12)
     u_lo = (lo - az0_deg) / step
     k0 = np.ceil(u_lo - 1e-9).astype(np.intp)
-    k1 = np.floor(u_lo + span / step + 1e-9).astype(np.intp)
-    cnt = np.maximum(k1 - k0 + 1, 0)
+    cnt = np.maximum(np.floor(u_lo + span / step + 1e-9).astype(np.intp) - k0 + 1, 0)
     seg = np.repeat(np.arange(cnt.size), cnt)
-    kk = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt) + k0[seg]
-    sp = span[seg]
-    t = np.clip(np.where(sp > 0, (kk * step - (lo[seg] - az0_deg)) / np.where(sp > 0, sp, 1.0), 0.0), 0.0, 1.0)
-    np.maximum.at(out, np.mod(kk, n), elo[seg] + (ehi[seg] - elo[seg]) * t)
+    kk = np.arange(seg.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + k0[seg]
+    # position along the segment (degrees from its low end), clipped to the segment
+    t = np.clip(kk * step - (lo[seg] - az0_deg), 0.0, span[seg])
+    np.maximum.at(out, np.mod(kk, n), elo[seg] + slope[seg] * t)
     out[~np.isfinite(out)] = np.nan
     return out
 

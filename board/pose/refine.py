@@ -177,13 +177,14 @@ def _residual(local: LocalDB, vb: np.ndarray, v: dict, sw: np.ndarray | None = N
 def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict, *,
            free: tuple[str, ...] = PARAMS, tilt_prior: tuple[float, float, float] | None = None,
            noise_deg: float = 0.1, bounds: dict | None = None, max_iter: int = 40,
-           weights: np.ndarray | None = None) -> Refined:
+           weights: np.ndarray | None = None, ftol: float = 1e-10) -> Refined:
     """Levenberg-Marquardt refinement of ``init`` (dict of PARAMS) on the seen query samples.
 
     theta_deg, el_deg : seen query samples (relative azimuth, elevation), degrees
     tilt_prior : (pitch, roll, sigma) degrees from an IMU, weighted against ``noise_deg``
     bounds : {name: (lo, hi)} box constraints (e.g. the fractional grid window)
     weights : optional (n_seen,) relative weights of the samples (1 = nominal noise)
+    ftol : stop when an iteration lowers the cost by less than this fraction
     """
     sw = None if weights is None else np.sqrt(np.asarray(weights, float))
     v = {k: float(init[k]) for k in PARAMS}
@@ -248,7 +249,7 @@ def refine(local: LocalDB, theta_deg: np.ndarray, el_deg: np.ndarray, init: dict
                 lam = max(lam / 3, 1e-7)
                 break
             lam *= 4
-        if not improved or dc < 1e-10 * max(cost, 1e-12):
+        if not improved or dc < ftol * max(cost, 1e-12):
             break
     res, mu = _residual(local, vb, v, sw)
     J = jacobian(v, r)
