@@ -86,6 +86,19 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
          f"sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m, {fix.sigma_heading_deg:.2f} deg | "
          f"error {err:.2f} m, heading error {herr:.2f} deg, {fix.elapsed_s:.2f} s")
     summary["locate"] = {"error_m": err, "heading_error_deg": herr, "status": fix.status, **fix.to_json_dict()}
+    # the other two scenarios of the same query: end of a traverse (prior position 15 m off, 30 m window)
+    # and along the traverse (position known to 20 m, heading prior 6 degrees off)
+    a = float(rng.uniform(0, 2 * math.pi))
+    prior = (true_x + 15.0 * math.cos(a), true_y + 15.0 * math.sin(a))
+    for mode, kw in (("window", {"prior_xy": prior, "radius_m": 30.0}),
+                     ("heading", {"prior_xy": prior, "heading_prior_deg": heading + 6.0})):
+        f = locate(db, sky, mode=mode, **kw)
+        e = math.hypot(f.x - true_x, f.y - true_y)
+        he = abs((f.heading_deg - heading + 180) % 360 - 180)
+        _say(f"      {mode} mode (prior 15 m off{', heading prior +6 deg' if mode == 'heading' else ''}): "
+             f"error {e:.2f} m, heading error {he:.2f} deg, status {f.status}, "
+             f"sigma {f.sigma_x_m:.2f}/{f.sigma_y_m:.2f} m, {f.sigma_heading_deg:.2f} deg, {f.elapsed_s:.2f} s")
+        summary[f"locate_{mode}"] = {"error_m": e, "heading_error_deg": he, **f.to_json_dict()}
     try:
         from board.plots import plot_fix
         plot_fix(fix, out / "locate.png", truth=(true_x, true_y))
