@@ -18,6 +18,7 @@ import numpy as np
 
 from blender_addon.scene import state
 from blender_addon.scene.camera import CAMERA_NAME, set_equirect, set_perspective
+from blender_addon.scene.quiet import native_stdout_captured
 from board.camera import CameraModel
 from board.errors import InvalidInputError
 
@@ -121,9 +122,12 @@ def _render_to(scene: bpy.types.Scene, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
     scene.render.filepath = str(tmp)
-    bpy.ops.render.render(write_still=True, scene=scene.name)
+    with native_stdout_captured() as blender_out:       # Blender prints "Saved: '...'" on fd 1
+        bpy.ops.render.render(write_still=True, scene=scene.name)
     if not tmp.is_file():
-        raise RuntimeError(f"Blender did not write {tmp}: check the log above")
+        said = blender_out.text.strip() or "(nothing)"
+        raise RuntimeError(f"Blender did not write {tmp}; it printed: {said}. Check the log above "
+                           "and that the folder is writable")
     os.replace(tmp, path)
     return path
 
