@@ -1,31 +1,20 @@
 """SKYLOC_OT_acquire: a simulated NavCam acquisition (pan-tilt frames + manifest) at the rover pose."""
 from __future__ import annotations
 
-import uuid
-
 import bpy  # noqa: TID251 (extension layer)
 
 from .. import bridge
 
 
 def _simulator(Simulator, s):
-    """A Simulator on the terrain already built in this scene.
+    """A Simulator on the terrain already built in this scene (by the Build terrain operator).
 
     Simulator() resets the Blender session (read_factory_settings), which must not happen inside
-    an operator (it frees the operator's own context and crashes Blender); so when the panel has
-    built the terrain, the simulator adopts it instead of building its own.
+    an operator (it frees the operator's own context and crashes Blender); ``Simulator.adopt``
+    takes over the built terrain instead.
     """
-    from blender_addon import scene as bscene
-
-    terrain = bridge.require_terrain()
-    sim = Simulator.__new__(Simulator)
-    sim.dem_spec, sim.dem_path = s.dem.strip(), bridge.SESSION.dem_path
-    sim.site_xy, sim.terrain, sim.grid_half_m = tuple(terrain.site_xy), terrain, float(s.grid_half_m)
-    sim._scene = bscene
-    # mark the scene as this simulator's (Simulator._ensure_scene would otherwise rebuild it)
-    sim._token = uuid.uuid4().hex
-    bscene.state.get_scene()["skyloc_simulator"] = sim._token
-    return sim
+    return Simulator.adopt(bridge.require_terrain(), dem_spec=s.dem.strip(), dem_path=bridge.SESSION.dem_path,
+                           grid_half_m=float(s.grid_half_m))
 
 
 class SKYLOC_OT_acquire(bpy.types.Operator):

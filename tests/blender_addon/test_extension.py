@@ -112,7 +112,10 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
         pano = load_panorama(tmp_path / "out" / "panorama")
         assert pano.geometry.width == 128 and pano.truth.heading_deg == 30.0
         s.frames, s.arc_deg, s.frame_width, s.preset = 2, 130.0, 48, "binary"
+        terrain_objects = {o.as_pointer() for o in bpy.data.collections["SkylocTerrain"].objects}
         assert bpy.ops.skyloc.acquire() == {"FINISHED"}
+        # the acquisition adopted the terrain built above (Simulator.adopt): no session reset, no rebuild
+        assert {o.as_pointer() for o in bpy.data.collections["SkylocTerrain"].objects} == terrain_objects
         acq = load_acquisition(tmp_path / "out" / "acquisition")
         assert len(acq.frames) == 2
         s.db_size_m, s.db_step_m = 20.0, 20.0
