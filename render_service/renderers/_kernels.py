@@ -286,6 +286,8 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
         bm = blk2[blk2_off[lev] + bi * blk2_cols[lev] + bj]
         if _bound_tan(bm - z_eye, d, c_per_m) <= best:
             t = _exit_distance(u, v, du, dv, bj * b2, (bj + 1) * b2, bi * b2, (bi + 1) * b2)
+            # an edge block reaches past the level, whose block maxima do not cover the coarser terrain there
+            t = min(t, _exit_distance(u, v, du, dv, 0.0, cols[lev] - 1.0, 0.0, rows[lev] - 1.0))
             d += max(t, 0.0) + _SKIP_PAST * cell[lev]
             if d < d_lattice:
                 d = math.ceil(d / min_step) * min_step
@@ -296,6 +298,7 @@ def march_ray(px, py, z_eye, sx, sy, heights, offsets, rows, cols, x0, y0, cell,
         bm = blk1[blk1_off[lev] + bi * blk1_cols[lev] + bj]
         if _bound_tan(bm - z_eye, d, c_per_m) <= best:
             t = _exit_distance(u, v, du, dv, bj * b1, (bj + 1) * b1, bi * b1, (bi + 1) * b1)
+            t = min(t, _exit_distance(u, v, du, dv, 0.0, cols[lev] - 1.0, 0.0, rows[lev] - 1.0))
             d += max(t, 0.0) + _SKIP_PAST * cell[lev]
             if d < d_lattice:
                 d = math.ceil(d / min_step) * min_step

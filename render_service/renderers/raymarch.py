@@ -31,7 +31,7 @@ from render_service.renderers.base import RenderSpec, TileResult
 log = logging.getLogger(__name__)
 
 #: Recorded in the database metadata; bump when results change.
-__version__ = "2"   # 2: exact near field
+__version__ = "3"   # 2: exact near field; 3: a block skip stops at its level's edge
 RENDERER_NAME = "raymarch"
 
 
