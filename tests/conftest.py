@@ -18,7 +18,8 @@ os.environ.setdefault("BLENDER_USER_RESOURCES", str(_TMP / "blender"))
 os.environ.setdefault("XDG_CACHE_HOME", str(_TMP / "xdg"))
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DEMS = REPO.parent / "shared" / "data" / "dems"
+# SKYLOC_TEST_DEMS=<folder> points the real-DEM fixtures elsewhere (an empty folder: run as on a clean clone).
+SHARED_DEMS = Path(os.environ.get("SKYLOC_TEST_DEMS") or REPO.parent / "shared" / "data" / "dems")
 
 
 def _register_service_helpers() -> None:
@@ -51,5 +52,16 @@ def real_dem(dems_dir):
         if not p.is_file():
             pytest.skip(f"real DEM {name} not found in {dems_dir}")
         return p
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def optional_real_dem():
+    """Return a function name -> path of a real DEM, or None when it is absent (for tests with a fallback)."""
+
+    def get(name: str) -> Path | None:
+        p = SHARED_DEMS / name
+        return p if p.is_file() else None
 
     return get

@@ -1,7 +1,9 @@
 """Render-service API unit cases on an in-process app (TestClient, no Dask): auth, validation, limits, errors.
 
-The bad inputs here are real files (GDAL-written rasters, a real PNG, a truncated real GeoTIFF);
+The bad inputs here are real files (GDAL-written rasters, a real PNG, a truncated GeoTIFF);
 every refusal must be a 4xx JSON {"detail", "code"} with a reason, and the app must keep serving.
+The uploaded DEM is ``service_dem`` (tests/render_service/conftest.py): the real Gale patch, or a
+procedural Mars DEM when ../shared/data/dems is absent.
 """
 from __future__ import annotations
 
@@ -18,8 +20,6 @@ from render_service.main import create_app
 from render_service.security import TokenAuth, check_startup, is_loopback, load_token
 from render_service.settings import ServiceSettings
 
-GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
-
 
 @pytest.fixture()
 def app_client(tmp_path):
@@ -31,9 +31,8 @@ def app_client(tmp_path):
 
 
 @pytest.fixture()
-def gale_dem(app_client, real_dem):
-    path = real_dem(GALE)
-    r = app_client.post("/v1/dems", files={"file": ("gale.tif", path.read_bytes())})
+def uploaded_dem(app_client, service_dem):
+    r = app_client.post("/v1/dems", files={"file": ("dem.tif", service_dem.path.read_bytes())})
     assert r.status_code == 201, r.text
     return r.json()
 
@@ -59,19 +58,19 @@ def assert_refused(r, status=None, *, words=()):
 
 
 # -- DEM upload ---------------------------------------------------------------------------------------
-def test_upload_real_dem_summary_matches_gdal(app_client, gale_dem, real_dem):
+def test_upload_dem_summary_matches_gdal(app_client, uploaded_dem, service_dem):
     from osgeo import gdal
 
-    ds = gdal.Open(str(real_dem(GALE)))
+    ds = gdal.Open(str(service_dem.path))
     gt = ds.GetGeoTransform()
-    assert gale_dem["size"] == [ds.RasterXSize, ds.RasterYSize]
-    assert gale_dem["cell_m"] == pytest.approx(abs(gt[1]))
-    assert gale_dem["bounds"][0] == pytest.approx(gt[0]) and gale_dem["bounds"][3] == pytest.approx(gt[3])
-    assert gale_dem["body"] == "mars" and not gale_dem["is_geographic"]
+    assert uploaded_dem["size"] == [ds.RasterXSize, ds.RasterYSize]
+    assert uploaded_dem["cell_m"] == pytest.approx(abs(gt[1]))
+    assert uploaded_dem["bounds"][0] == pytest.approx(gt[0]) and uploaded_dem["bounds"][3] == pytest.approx(gt[3])
+    assert uploaded_dem["body"] == service_dem.body and not uploaded_dem["is_geographic"]
     # same content again: same id, not a new DEM
-    again = app_client.post("/v1/dems", files={"file": ("other.tif", real_dem(GALE).read_bytes())}).json()
-    assert again["id"] == gale_dem["id"] and again["created"] is False
-    assert [d["id"] for d in app_client.get("/v1/dems").json()] == [gale_dem["id"]]
+    again = app_client.post("/v1/dems", files={"file": ("other.tif", service_dem.path.read_bytes())}).json()
+    assert again["id"] == uploaded_dem["id"] and again["created"] is False
+    assert [d["id"] for d in app_client.get("/v1/dems").json()] == [uploaded_dem["id"]]
 
 
 def _png_bytes(tmp_path):
@@ -85,13 +84,13 @@ def _png_bytes(tmp_path):
 
 @pytest.mark.parametrize("case", ["truncated", "garbage", "png_renamed", "no_crs_degrees", "unknown_body_degrees",
                                   "nodata_everywhere", "huge_declared", "bad_body_name", "vrt_pointing_elsewhere"])
-def test_bad_uploads_are_refused_with_reason(app_client, tmp_path, real_dem, case):
+def test_bad_uploads_are_refused_with_reason(app_client, tmp_path, service_dem, case):
     rng = np.random.default_rng(1)
     a = (rng.normal(size=(40, 40)) * 5 + 100).astype(np.float32)
     deg_gt = (10.0, 0.001, 0.0, 45.0, 0.0, -0.001)
     data, form, words = None, None, ()
     if case == "truncated":
-        raw = real_dem(GALE).read_bytes()
+        raw = service_dem.path.read_bytes()
         data, words = raw[: len(raw) // 3], ("gdal",)
     elif case == "garbage":
         data = b"II*\x00" + bytes(rng.integers(0, 256, 5000, dtype=np.uint8))
@@ -112,7 +111,7 @@ def test_bad_uploads_are_refused_with_reason(app_client, tmp_path, real_dem, cas
         data, form, words = H.write_tif(tmp_path / "f.tif", a, gt=deg_gt).read_bytes(), {"body": "vulcan"}, ("body",)
     elif case == "vrt_pointing_elsewhere":  # a VRT renamed .tif that would read another server file
         data = (f'<VRTDataset rasterXSize="348" rasterYSize="337"><VRTRasterBand dataType="Float32" band="1">'
-                f'<SimpleSource><SourceFilename relativeToVRT="0">{real_dem(GALE)}</SourceFilename>'
+                f'<SimpleSource><SourceFilename relativeToVRT="0">{service_dem.path}</SourceFilename>'
                 f'<SourceBand>1</SourceBand></SimpleSource></VRTRasterBand></VRTDataset>').encode()
     r = app_client.post("/v1/dems", files={"file": ("dem.tif", data)}, data=form)
     body = assert_refused(r, 422, words=words)
@@ -123,8 +122,8 @@ def test_bad_uploads_are_refused_with_reason(app_client, tmp_path, real_dem, cas
 
 @pytest.mark.parametrize("name", ["../../etc/passwd.tif", "..\\x.tif", "/etc/x.tif", "a/b.tif", ".hidden.tif",
                                   "dem.vrt", "dem.sh"])
-def test_upload_names_with_paths_or_bad_suffix_refused(app_client, real_dem, name):
-    r = app_client.post("/v1/dems", files={"file": (name, real_dem(GALE).read_bytes())})
+def test_upload_names_with_paths_or_bad_suffix_refused(app_client, service_dem, name):
+    r = app_client.post("/v1/dems", files={"file": (name, service_dem.path.read_bytes())})
     assert_refused(r, 422, words=("file name",))
 
 
@@ -141,14 +140,14 @@ def test_upload_over_size_limit_is_413(app_client):
     ({"azimuths": 0}, "azimuths"), ({"renderer": "povray"}, "renderer"), ({"kind": "pizza"}, "kind"),
     ({"unexpected": 1}, "unexpected"), ({"dem_id": "../../etc"}, "dem_id"), ({"camera_height_m": -1}, "camera"),
 ])
-def test_bad_job_fields_are_422(app_client, gale_dem, patch, where):
-    r = app_client.post("/v1/jobs", json=_job(gale_dem, **patch))
+def test_bad_job_fields_are_422(app_client, uploaded_dem, patch, where):
+    r = app_client.post("/v1/jobs", json=_job(uploaded_dem, **patch))
     body = assert_refused(r, 422)
     assert body["code"] == "validation_error" and where in str(body["detail"])
 
 
-def test_missing_fields_are_422(app_client, gale_dem):
-    spec = _job(gale_dem)
+def test_missing_fields_are_422(app_client, uploaded_dem):
+    spec = _job(uploaded_dem)
     for field in ("dem_id", "center", "size_m", "step_m", "kind"):
         r = app_client.post("/v1/jobs", json={k: v for k, v in spec.items() if k != field})
         assert_refused(r, 422)
@@ -156,32 +155,33 @@ def test_missing_fields_are_422(app_client, gale_dem):
                    422)
 
 
-def test_job_limits_and_dem_bounds(app_client, gale_dem):
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, size_m=20000, step_m=50)), 422,
+def test_job_limits_and_dem_bounds(app_client, uploaded_dem):
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, size_m=20000, step_m=50)), 422,
                    words=("km^2", "limit"))
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, size_m=300, step_m=0.1)), 422,
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, size_m=300, step_m=0.1)), 422,
                    words=("positions",))
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, azimuths=5000)), 422, words=("azimuths",))
-    x, y = gale_dem["bounds"][2], gale_dem["bounds"][3]  # centre on the corner: grid half outside
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, center=[x, y])), 422, words=("inside",))
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, dem_id="0123456789abcdef")), 422,
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, azimuths=5000)), 422, words=("azimuths",))
+    x, y = uploaded_dem["bounds"][2], uploaded_dem["bounds"][3]  # centre on the corner: grid half outside
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, center=[x, y])), 422, words=("inside",))
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, dem_id="0123456789abcdef")), 422,
                    words=("upload",))
 
 
-def test_job_submit_idempotent_list_cancel(app_client, gale_dem):
-    spec = _job(gale_dem)
+def test_job_submit_idempotent_list_cancel(app_client, uploaded_dem):
+    spec = _job(uploaded_dem)
     r1 = app_client.post("/v1/jobs", json=spec)
     assert r1.status_code == 202 and r1.headers["location"] == f"/v1/jobs/{r1.json()['id']}"
     j = r1.json()
     # 11 x 11 positions in tiles of 4 -> 3 x 3 tiles
     assert (j["state"], j["tiles_total"], j["tiles_done"], j["positions_total"]) == ("queued", 9, 0, 121)
     assert app_client.post("/v1/jobs", json=spec).json()["id"] == j["id"]          # same spec, same job
-    other = app_client.post("/v1/jobs", json=_job(gale_dem, azimuths=72), headers={"Idempotency-Key": "k1"}).json()
+    key = {"Idempotency-Key": "k1"}
+    other = app_client.post("/v1/jobs", json=_job(uploaded_dem, azimuths=72), headers=key).json()
     assert other["id"] != j["id"]
-    again = app_client.post("/v1/jobs", json=_job(gale_dem, azimuths=72), headers={"Idempotency-Key": "k1"}).json()
+    again = app_client.post("/v1/jobs", json=_job(uploaded_dem, azimuths=72), headers=key).json()
     assert again["id"] == other["id"]
-    assert_refused(app_client.post("/v1/jobs", json=_job(gale_dem, azimuths=90), headers={"Idempotency-Key": "k1"}),
-                   422, words=("idempotency",))
+    assert_refused(app_client.post("/v1/jobs", json=_job(uploaded_dem, azimuths=90), headers=key), 422,
+                   words=("idempotency",))
     assert {x["id"] for x in app_client.get("/v1/jobs").json()["jobs"]} == {j["id"], other["id"]}
     assert app_client.get(f"/v1/jobs/{j['id']}/result").status_code == 409   # not done yet
     c = app_client.delete(f"/v1/jobs/{j['id']}")
@@ -200,7 +200,7 @@ def test_dataset_job_scene_names(app_client):
 
 
 # -- security ---------------------------------------------------------------------------------------------
-def test_token_required_and_compared(app_client, gale_dem):
+def test_token_required_and_compared(app_client, uploaded_dem):
     for headers in ({}, {"Authorization": "Bearer wrong-token-0123456789"}, {"Authorization": "Token " + H.TOKEN},
                     {"Authorization": "Bearer"}, {"Authorization": "Basic !!!"}):
         for method, url in (("GET", "/v1/jobs"), ("GET", "/"), ("POST", "/v1/jobs"), ("GET", "/v1/dems")):

@@ -1,5 +1,6 @@
 """The render service end to end: a real `skyloc serve` (uvicorn) subprocess on 127.0.0.1 with a Dask
-LocalCluster of worker processes, a real DEM (HiRISE Gale crater patch, 1 m, Mars).
+LocalCluster of worker processes, a real DEM (HiRISE Gale crater patch, 1 m, Mars), or a procedural
+Mars DEM (1 m) when ../shared/data/dems is absent (``service_dem``, tests/render_service/conftest.py).
 
 * clean run: upload, submit, poll, download the zip (also by ranges), verify its checksum manifest,
   open it with board.skydb.SkyDB, and compare it with the CLI's renderer run in this process;
@@ -27,10 +28,8 @@ import skyloc_service_test_helpers as H  # registered by tests/conftest.py
 from board.skydb import SkyDB
 from render_service.store import JobStore
 
-pytestmark = [pytest.mark.service, pytest.mark.slow, pytest.mark.realdem]
+pytestmark = [pytest.mark.service, pytest.mark.slow]
 
-
-GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
 # 100 m at 2 m: 51 x 51 positions, tiles of 6 -> 9 x 9 = 81 tiles, 72 azimuths (5 degrees)
 JOB = {"kind": "skyline_db", "size_m": 100, "step_m": 2, "azimuths": 72, "tile_size": 6, "camera_height_m": 1.5}
 
@@ -68,9 +67,9 @@ def server_a(work):
 
 
 @pytest.fixture(scope="module")
-def clean_run(server_a, work, real_dem):
-    """Upload Gale, render JOB, download the result: (job, dem, zip bytes, extracted folder)."""
-    r = server_a.upload(real_dem(GALE))
+def clean_run(server_a, work, service_dem):
+    """Upload the DEM, render JOB, download the result: (job, dem, zip bytes, extracted folder)."""
+    r = server_a.upload(service_dem.path)
     assert r.status_code == 201, r.text
     dem = r.json()
     sub = server_a.client.post("/v1/jobs", json=job_spec(dem))
@@ -82,13 +81,13 @@ def clean_run(server_a, work, real_dem):
     return job, dem, res.content, unzip(res.content, work / "clean")
 
 
-def test_clean_run_result_opens_and_matches_the_cli_renderer(clean_run, real_dem, work):
+def test_clean_run_result_opens_and_matches_the_cli_renderer(clean_run, service_dem, work):
     job, dem, data, folder = clean_run
     assert (job["tiles_done"], job["tiles_total"], job["positions_total"]) == (81, 81, 51 * 51)
     assert hashlib.sha256(data).hexdigest() == job["result_sha256"] and len(data) == job["result_bytes"]
     check_manifest(folder)
     db = SkyDB.open(folder / "db.zarr")
-    assert db.complete and db.shape == (51, 51, 72) and db.meta.body == "mars"
+    assert db.complete and db.shape == (51, 51, 72) and db.meta.body == service_dem.body
     assert db.meta.camera_height_m == 1.5 and db.meta.dem_sha256 == dem["sha256"]
     assert db.grid.bounds() == pytest.approx((dem["center"][0] - 50, dem["center"][1] - 50,
                                               dem["center"][0] + 50, dem["center"][1] + 50))
@@ -98,7 +97,7 @@ def test_clean_run_result_opens_and_matches_the_cli_renderer(clean_run, real_dem
     from render_service.dbrender import render_database
     from render_service.renderers.base import RenderSpec
 
-    ref = render_database(real_dem(GALE), center_xy=tuple(dem["center"]), size_m=100, step_m=2,
+    ref = render_database(service_dem.path, center_xy=tuple(dem["center"]), size_m=100, step_m=2,
                           spec=RenderSpec(camera_height_m=1.5, n_azimuth=72), out=work / "cli.zarr",
                           tile_size=6, progress=False)
     want = np.concatenate([ref.read_tile_raw(t).reshape(-1, 72) for t in ref.tiles])
@@ -134,12 +133,12 @@ def _alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
-def test_kill9_mid_job_resumes_to_an_identical_database(clean_run, work, real_dem):
+def test_kill9_mid_job_resumes_to_an_identical_database(clean_run, work, service_dem):
     job_a, dem_a, _, clean = clean_run
     data_b = work / "data_b"
     srv = H.Server(data_b, workers=2)
     try:
-        dem = srv.upload(real_dem(GALE)).json()
+        dem = srv.upload(service_dem.path).json()
         job_id = srv.client.post("/v1/jobs", json=job_spec(dem)).json()["id"]
         assert job_id == job_a["id"]  # same spec, same job id on any server
         t_end = time.monotonic() + 240
@@ -259,7 +258,7 @@ def test_cancel_running_job_publishes_nothing(server_a, clean_run):
     assert server_a.client.delete(f"/v1/jobs/{clean_run[0]['id']}").status_code == 409  # done: nothing to cancel
 
 
-def test_bad_inputs_against_the_live_server(server_a, clean_run, tmp_path, real_dem):
+def test_bad_inputs_against_the_live_server(server_a, clean_run, tmp_path, service_dem):
     _, dem, _, _ = clean_run
     c = server_a.client
     png = tmp_path / "x.png"
@@ -268,7 +267,7 @@ def test_bad_inputs_against_the_live_server(server_a, clean_run, tmp_path, real_
     gdal.GetDriverByName("PNG").CreateCopy(str(png), gdal.GetDriverByName("MEM").Create("", 8, 8, 1))
     cases = [
         c.post("/v1/dems", files={"file": ("x.tif", png.read_bytes())}),
-        c.post("/v1/dems", files={"file": ("../../x.tif", real_dem(GALE).read_bytes())}),
+        c.post("/v1/dems", files={"file": ("../../x.tif", service_dem.path.read_bytes())}),
         c.post("/v1/jobs", json=job_spec(dem, step_m=0)),
         c.post("/v1/jobs", json=job_spec(dem, size_m=50000)),
         c.post("/v1/jobs", json={"kind": "skyline_db"}),

@@ -1,7 +1,7 @@
 """Property-based API test: schemathesis generates requests from the OpenAPI schema; none may give a 5xx.
 
-In-process ASGI app (no Dask), authenticated, a real DEM already uploaded; few examples per operation
-to keep it bounded.
+In-process ASGI app (no Dask), authenticated, a DEM already uploaded (``service_dem``: the real Gale
+patch, or a procedural Mars DEM without ../shared/data/dems); few examples per operation to keep it bounded.
 """
 from __future__ import annotations
 
@@ -17,21 +17,18 @@ from render_service.main import create_app
 from render_service.settings import ServiceSettings
 
 TOKEN = "schema-token-0123456789abcdef"
-GALE = "mars_gale_hirise_1m_mmgis_missionDEM.tif"
 
 
 @pytest.fixture(scope="module")
-def api_schema():
+def api_schema(service_dem):
     from fastapi.testclient import TestClient
 
     data = Path(tempfile.mkdtemp(prefix="skyloc-schema-"))
     app = create_app(ServiceSettings(data_dir=data, token=TOKEN, start_cluster=False, max_upload_bytes=4_000_000))
-    gale = Path(__file__).resolve().parents[3] / "shared" / "data" / "dems" / GALE  # optional: a DEM to refer to
-    if gale.is_file():
-        with TestClient(app) as c:
-            r = c.post("/v1/dems", files={"file": ("gale.tif", gale.read_bytes())},
-                       headers={"Authorization": f"Bearer {TOKEN}"})
-            assert r.status_code == 201, r.text
+    with TestClient(app) as c:  # a DEM for generated jobs to refer to
+        r = c.post("/v1/dems", files={"file": ("dem.tif", service_dem.path.read_bytes())},
+                   headers={"Authorization": f"Bearer {TOKEN}"})
+        assert r.status_code == 201, r.text
     return schemathesis.openapi.from_asgi("/openapi.json", app)
 
 
