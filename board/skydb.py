@@ -247,6 +247,16 @@ class SkyDBWriter:
                 raise InvalidInputError(
                     f"{path} already holds a different skyline database (differs in {', '.join(diff)}); "
                     "choose another --out or delete it")
+            old_v, new_v = theirs.get("renderer_version"), mine.get("renderer_version")
+            if old_v != new_v:
+                if not existing.complete:
+                    raise InvalidInputError(
+                        f"{path} was partly rendered by {theirs.get('renderer')} version {old_v}; this is version "
+                        f"{new_v}: resuming would mix tiles of two renderer versions. Delete it (or choose another "
+                        "--out) to render it again from scratch, or finish it with the version that started it")
+                log.warning("%s is complete but was rendered by %s version %s (this is version %s): kept as it "
+                            "is; delete it and render again for the current renderer", path, theirs.get("renderer"),
+                            old_v, new_v)
             log.info("resuming %s: %d of %d tiles done", path, existing.n_tiles_done(), len(existing.tiles))
             return cls(path, existing.meta, zarr.open_group(str(path), mode="r+"))
         if path.exists() and overwrite:

@@ -74,6 +74,27 @@ def test_resume_refuses_a_different_database(tmp_path):
         SkyDBWriter.create(path, other)
 
 
+def test_resume_across_renderer_versions(tmp_path, caplog):
+    """A partial store of another renderer version is not resumed (tiles would mix); a complete one is kept."""
+    path = tmp_path / "db.zarr"
+    old = _meta()
+    old.renderer_version = "2"
+    w = SkyDBWriter.create(path, old)
+    t = w.tiles[0]
+    w.write_tile(t, np.full((t.nrows, t.ncols, old.n_azimuth), 1.0))
+    new = _meta()
+    new.renderer_version = "3"
+    with pytest.raises(InvalidInputError, match="version 2; this is version 3"):
+        SkyDBWriter.create(path, new)
+    w = SkyDBWriter.create(path, old)  # the version that started it finishes it
+    for t in w.pending_tiles():
+        w.write_tile(t, np.full((t.nrows, t.ncols, old.n_azimuth), 1.0))
+    w.finalize()
+    with caplog.at_level("WARNING"):
+        again = SkyDBWriter.create(path, new)
+    assert again.pending_tiles() == [] and "rendered by" in caplog.text
+
+
 def test_reader_refuses_unknown_version_and_corrupt(tmp_path):
     path = tmp_path / "db.zarr"
     SkyDBWriter.create(path, _meta())
