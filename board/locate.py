@@ -511,8 +511,10 @@ def _grid_error_var(local: LocalDB, ref: Refined) -> float:
     variance floor so that a place whose grid nodes miss the truth by that much is not ruled out
     (the look-elsewhere effect of a 65-degree frame).
     """
+    if ref.enu_az_deg.size == 0:
+        return 0.0
     v = ref.values
-    return float(np.mean(_grid_error_samples(local, v["row"], v["col"], ref.enu_az_deg))) if ref.enu_az_deg.size else 0.0
+    return float(np.mean(_grid_error_samples(local, v["row"], v["col"], ref.enu_az_deg)))
 
 
 def _noise_given_weights(r2: np.ndarray, g2: np.ndarray, dof: int) -> float:
