@@ -354,7 +354,8 @@ def write_acquisition(folder: str | os.PathLike, acq: Acquisition, *,
             _write_image_atomic(root / f.file, img)
     missing = [f.file for f in acq.frames if not (root / f.file).is_file()]
     if missing:
-        raise InvalidInputError(f"frames missing from {root}: {', '.join(missing[:5])}; pass images= or write them first")
+        raise InvalidInputError(f"frames missing from {root}: {', '.join(missing[:5])}; "
+                                "pass images= or write them first")
     doc = acq.to_dict()
     _validate(doc, "acquisition", "acquisition to write")
     path = root / ACQUISITION_MANIFEST

@@ -6,8 +6,17 @@ import json
 import numpy as np
 import pytest
 
-from board.acquisition import (Acquisition, FrameInfo, GroundTruth, PanoramaGeometry, load_acquisition,
-                               load_panorama, load_schema, write_acquisition, write_panorama)
+from board.acquisition import (
+    Acquisition,
+    FrameInfo,
+    GroundTruth,
+    PanoramaGeometry,
+    load_acquisition,
+    load_panorama,
+    load_schema,
+    write_acquisition,
+    write_panorama,
+)
 from board.camera import CameraModel
 from board.errors import FormatError, InvalidInputError
 

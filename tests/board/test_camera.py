@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from board.camera import (CameraModel, az_el_to_pixel, camera_to_body, pixel_to_az_el,
-                          rotation_body_from_camera)
+from board.camera import CameraModel, az_el_to_pixel, camera_to_body, pixel_to_az_el, rotation_body_from_camera
 from board.conventions import az_el_from_enu_deg
 from board.errors import FormatError, InvalidInputError
 

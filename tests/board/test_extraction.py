@@ -11,8 +11,13 @@ from click.testing import CliRunner
 from board.acquisition import GroundTruth, Panorama, PanoramaGeometry, write_panorama
 from board.camera import CameraModel
 from board.errors import InvalidInputError
-from board.extraction import (STATUS_FAILED, STATUS_OK, extract_from_acquisition, extract_from_panorama,
-                              panorama_line_to_skyline)
+from board.extraction import (
+    STATUS_FAILED,
+    STATUS_OK,
+    extract_from_acquisition,
+    extract_from_panorama,
+    panorama_line_to_skyline,
+)
 from board.skyline import Skyline
 from board.synthetic import SkylineFunction, frame_plan, synth_acquisition, synth_panorama
 
