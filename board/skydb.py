@@ -225,6 +225,38 @@ class SkyDBWriter:
         self._group = group
         self.tiles = plan_tiles(meta.grid, meta.tile_size)
 
+    @staticmethod
+    def check_resumable(path: str | os.PathLike, meta: SkyDBMeta, *, warn: bool = False) -> "SkyDB":
+        """The existing store at ``path`` if rendering ``meta`` there may resume it; InvalidInputError if not.
+
+        A different database (grid, DEM, height, sampling, renderer...) is refused, and so is a partial
+        store started by another renderer version (its tiles would mix versions); a complete store of
+        another renderer version is accepted (with a warning if ``warn``).
+        """
+        path = Path(path)
+        existing = SkyDB.open(path)
+        mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
+        keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
+                "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
+                "has_distance")
+        diff = [k for k in keys if mine.get(k) != theirs.get(k)]
+        if diff:
+            raise InvalidInputError(
+                f"{path} already holds a different skyline database (differs in {', '.join(diff)}); "
+                "choose another --out or delete it")
+        old_v, new_v = theirs.get("renderer_version"), mine.get("renderer_version")
+        if old_v != new_v:
+            if not existing.complete:
+                raise InvalidInputError(
+                    f"{path} was partly rendered by {theirs.get('renderer')} version {old_v}; this is version "
+                    f"{new_v}: resuming would mix tiles of two renderer versions. Delete it (or choose another "
+                    "--out) to render it again from scratch, or finish it with the version that started it")
+            if warn:
+                log.warning("%s is complete but was rendered by %s version %s (this is version %s): kept as it "
+                            "is; delete it and render again for the current renderer", path, theirs.get("renderer"),
+                            old_v, new_v)
+        return existing
+
     @classmethod
     def create(cls, path: str | os.PathLike, meta: SkyDBMeta, *, overwrite: bool = False) -> "SkyDBWriter":
         """Create a new store, or reopen ``path`` to resume if it holds the same render.
@@ -237,26 +269,7 @@ class SkyDBWriter:
         if meta.n_azimuth <= 0 or meta.tile_size <= 0:
             raise InvalidInputError("n_azimuth and tile_size must be positive")
         if path.exists() and not overwrite:
-            existing = SkyDB.open(path)
-            mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
-            keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
-                    "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
-                    "has_distance")
-            diff = [k for k in keys if mine.get(k) != theirs.get(k)]
-            if diff:
-                raise InvalidInputError(
-                    f"{path} already holds a different skyline database (differs in {', '.join(diff)}); "
-                    "choose another --out or delete it")
-            old_v, new_v = theirs.get("renderer_version"), mine.get("renderer_version")
-            if old_v != new_v:
-                if not existing.complete:
-                    raise InvalidInputError(
-                        f"{path} was partly rendered by {theirs.get('renderer')} version {old_v}; this is version "
-                        f"{new_v}: resuming would mix tiles of two renderer versions. Delete it (or choose another "
-                        "--out) to render it again from scratch, or finish it with the version that started it")
-                log.warning("%s is complete but was rendered by %s version %s (this is version %s): kept as it "
-                            "is; delete it and render again for the current renderer", path, theirs.get("renderer"),
-                            old_v, new_v)
+            existing = cls.check_resumable(path, meta, warn=True)
             log.info("resuming %s: %d of %d tiles done", path, existing.n_tiles_done(), len(existing.tiles))
             return cls(path, existing.meta, zarr.open_group(str(path), mode="r+"))
         if path.exists() and overwrite:

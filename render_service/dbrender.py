@@ -200,7 +200,7 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
         # refuse a different database (or a non-database) before spending time on the terrain
         if not (out / "zarr.json").is_file():
             raise InvalidInputError(f"{out} exists and is not a skyline database: choose another --out or delete it")
-        SkyDBWriter.create(out, job.meta)
+        SkyDBWriter.check_resumable(out, job.meta)
     terrain = load_terrain(job, terrain_dir=terrain_dir)
     job.meta.extra["terrain_levels"] = [
         {"cell_m": float(lv.cell_m), "bounds": [float(b) for b in lv.bounds()]} for lv in terrain.levels]
