@@ -47,7 +47,6 @@ NOISE_FLOOR_FRACTION = 0.1
 NOISE_FLOOR_DEG = 0.02
 #: 1-sigma floor of the position (grid steps): the interpolated database is not trusted beyond it
 POSITION_SIGMA_FLOOR_STEPS = 0.2
-#: the weighted refinement interpolates with parallax when the database stores horizon distances
 #: share of the bilinear grid-error variance kept as model error after re-projection: (0.29 / 0.45)^2,
 #: the near-horizon RMS of the two interpolations against ray-marched truth (docs/matching.md)
 PARALLAX_RESIDUAL_SHARE = 0.4
@@ -56,6 +55,7 @@ PARALLAX_RESIDUAL_SHARE = 0.4
 REWEIGHT_ITERATIONS = 2  # one pass: medians 0.17 -> 0.21 m (360 deg), 1.45 -> 1.72 m (120 deg) on 84 trials
 REWEIGHT_MAX_ITER = 12
 REWEIGHT_FTOL = 1e-5
+#: the weighted refinement interpolates with parallax when the database stores horizon distances
 PARALLAX = os.environ.get("SKYLOC_NO_PARALLAX", "") == ""
 
 
@@ -198,6 +198,18 @@ def _coarse_init(db: SkyDB, q, row: int, col: int, allowed, level: tuple[float, 
     return {"row": float(row), "col": float(col), "heading": h, "pitch": float(pitch), "roll": float(roll)}
 
 
+def _position_limits(grid: GridSpec, region: Region) -> dict[str, tuple[float, float]]:
+    """Fractional (row, col) limits of a refined position: the region's bounding box plus half a node,
+    inside the grid."""
+    return {"row": (max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, grid.ny - 1)),
+            "col": (max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, grid.nx - 1))}
+
+
+def _box(row: int, col: int, half: float, limits: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """Refinement bounds: +-``half`` nodes around (row, col), within ``limits``."""
+    return {k: (max(c - half, limits[k][0]), min(c + half, limits[k][1])) for k, c in (("row", row), ("col", col))}
+
+
 def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt_prior, noise_deg: float,
                  region: Region, max_moves: int = 6) -> tuple[Refined, LocalDB]:
     """Refine from node (r, c) within +-1.5 nodes; while the optimum sits on that box's edge, move the box.
@@ -205,15 +217,12 @@ def _walk_refine(db: SkyDB, r: int, c: int, init: dict, theta, el, *, free, tilt
     Lets the refinement follow a long, flat valley of the score instead of stopping at the edge
     of the first window.  Positions stay inside the search region's bounding box (plus half a node).
     """
-    lo_r, hi_r = region.row0 - 0.5, region.row0 + region.nrows - 0.5
-    lo_c, hi_c = region.col0 - 0.5, region.col0 + region.ncols - 0.5
-    g = db.grid
-    lo_r, hi_r, lo_c, hi_c = max(lo_r, 0), min(hi_r, g.ny - 1), max(lo_c, 0), min(hi_c, g.nx - 1)
+    limits = _position_limits(db.grid, region)
     seen_nodes = set()
     for _ in range(max_moves):
         seen_nodes.add((r, c))
         local = _local_db(db, r, c)
-        bounds = {"row": (max(r - 1.5, lo_r), min(r + 1.5, hi_r)), "col": (max(c - 1.5, lo_c), min(c + 1.5, hi_c))}
+        bounds = _box(r, c, 1.5, limits)
         ref = refine(local, theta, el, init, free=free, tilt_prior=tilt_prior, noise_deg=noise_deg, bounds=bounds)
         v = ref.values
         at_edge = any(min(v[k] - lo, hi - v[k]) < 1e-6 for k, (lo, hi) in bounds.items())
@@ -236,14 +245,10 @@ def _multistart(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, noise_d
     """
     if "row" not in free:
         return None
-    g = db.grid
-    lo_r, hi_r = max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)
-    lo_c, hi_c = max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1)
     v0 = ref.values
     r0, c0 = int(round(v0["row"])), int(round(v0["col"]))
     local = _local_db(db, r0, c0, half=half)
-    m = half - 0.5
-    bounds = {"row": (max(r0 - m, lo_r), min(r0 + m, hi_r)), "col": (max(c0 - m, lo_c), min(c0 + m, hi_c))}
+    bounds = _box(r0, c0, half - 0.5, _position_limits(db.grid, region))
     best = None
     for dr, dc in MULTISTART_OFFSETS:
         init = dict(v0, row=float(r0 + dr), col=float(c0 + dc))
@@ -411,53 +416,63 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, *, mode: str = "lost
 INTERP_ERROR_FACTOR = 1.0
 
 
-def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.ndarray) -> np.ndarray:
-    """Covariance of the parameter bias caused by the database's bilinear interpolation error here.
+def _second_differences(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> np.ndarray | None:
+    """(4, n) second differences of the node skylines about the node nearest (row, col), degrees.
 
-    The error of predicting a node's skyline from its two neighbours (along rows, along columns
-    and both diagonals) is read at the fix's azimuths, scaled to a mid-cell error and propagated
-    through the least-squares fit: ``delta = (J^T J)^-1 J^T eps``.  Systematic errors like these
-    are what a noise-only covariance misses.
+    Along rows, columns and both diagonals: the error of predicting the node from its two
+    neighbours, read at ENU azimuths ``az_deg`` and centred (the fit removes the mean offset).
+    None when the window is narrower than 3 nodes or there is no azimuth.
     """
     nr, nc, _ = local.el.shape
-    if "row" not in ref.free or nr < 3 or nc < 3:
-        return np.zeros((len(ref.free),) * 2)
-    v = ref.values
-    if local.parallax:
-        # the corners' re-projections as realisations of the interpolation's error
-        try:
-            pinv = np.linalg.inv(info_unscaled)
-        except np.linalg.LinAlgError:
-            return np.zeros((len(ref.free),) * 2)
-        preds, w = local.corner_predictions(v["row"], v["col"])
-        dev = np.stack([local.sample(p, ref.enu_az_deg) for p in preds])
-        dev -= w @ dev
-        out = np.zeros((len(ref.free),) * 2)
-        for k in range(dev.shape[0]):
-            ej = dev[k] - dev[k].mean()
-            if ref.weights is not None:
-                ej = ej * np.sqrt(ref.weights)
-            delta = pinv @ (ref.jac.T @ ej)
-            out += w[k] * np.outer(delta, delta)
-        return out
-    i = int(np.clip(round(v["row"] - local.row0), 1, nr - 2))
-    j = int(np.clip(round(v["col"] - local.col0), 1, nc - 2))
+    if nr < 3 or nc < 3 or az_deg.size == 0:
+        return None
+    i = int(np.clip(round(row - local.row0), 1, nr - 2))
+    j = int(np.clip(round(col - local.col0), 1, nc - 2))
     e = local.el
-    az = ref.enu_az_deg
+    d = np.stack([local.sample(e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj]), az_deg)
+                  for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1))])
+    return d - d.mean(axis=1, keepdims=True)
+
+
+def _corner_deviations(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Parallax mode: (4, n) deviations of the corners' re-projections from their blend at ENU azimuths
+    ``az_deg`` (centred, degrees), and the corners' weights (4,)."""
+    preds, w = local.corner_predictions(row, col)
+    dev = np.stack([local.sample(p, az_deg) for p in preds])
+    dev -= w @ dev
+    return dev - dev.mean(axis=1, keepdims=True), w
+
+
+def _interpolation_bias_cov(local: LocalDB, ref: Refined, *, info_unscaled: np.ndarray) -> np.ndarray:
+    """Covariance of the parameter bias caused by the database's interpolation error here.
+
+    Realisations of that error, read at the fix's azimuths, are propagated through the
+    least-squares fit, ``delta = (J^T J)^-1 J^T eps``: with parallax interpolation the deviations
+    of the four corners' re-projections from their blend (weighted like the blend); otherwise the
+    error of predicting a node's skyline from its two neighbours (along rows, along columns and
+    both diagonals, two independent directions' worth), scaled to a mid-cell error.  Systematic
+    errors like these are what a noise-only covariance misses.
+    """
+    zero = np.zeros((len(ref.free),) * 2)
+    v = ref.values
+    d2 = None if "row" not in ref.free else _second_differences(local, v["row"], v["col"], ref.enu_az_deg)
+    if d2 is None:
+        return zero
     try:
         pinv = np.linalg.inv(info_unscaled)
     except np.linalg.LinAlgError:
-        return np.zeros((len(ref.free),) * 2)
-    out = np.zeros((len(ref.free),) * 2)
-    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        eps = e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj])
-        ej = local.sample(eps, az) * INTERP_ERROR_FACTOR
-        ej = ej - ej.mean()
-        if ref.weights is not None:
-            ej = ej * np.sqrt(ref.weights)
+        return zero
+    if local.parallax:
+        errors, weights = _corner_deviations(local, v["row"], v["col"], ref.enu_az_deg)
+    else:
+        errors, weights = d2 * INTERP_ERROR_FACTOR, np.full(len(d2), 0.5)  # four directions, two independent
+    if ref.weights is not None:
+        errors = errors * np.sqrt(ref.weights)
+    out = zero
+    for wk, ej in zip(weights, errors):
         delta = pinv @ (ref.jac.T @ ej)
-        out += np.outer(delta, delta)
-    return out / 2.0  # four directions, two independent ones
+        out = out + wk * np.outer(delta, delta)
+    return out
 
 
 #: mid-cell bilinear interpolation error relative to a node's second difference over two steps
@@ -468,23 +483,15 @@ MIDCELL_FACTOR = 0.25
 def _grid_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> np.ndarray:
     """Per-sample variance (degrees^2) of the database's grid error near (row, col), at ENU azimuths ``az_deg``.
 
-    The second difference of the node skylines around the node nearest (row, col) (along rows,
-    columns and both diagonals) times :data:`MIDCELL_FACTOR` estimates how far a skyline between
-    nodes departs from the bilinear interpolation of the grid.  It is large where the horizon is
-    close (parallax) and small where it is far.
+    The second differences of the node skylines (:func:`_second_differences`) times
+    :data:`MIDCELL_FACTOR` estimate how far a skyline between nodes departs from the bilinear
+    interpolation of the grid.  It is large where the horizon is close (parallax) and small where
+    it is far.
     """
-    nr, nc, _ = local.el.shape
-    if nr < 3 or nc < 3 or az_deg.size == 0:
+    d2 = _second_differences(local, row, col, az_deg)
+    if d2 is None:
         return np.zeros(az_deg.size)
-    i = int(np.clip(round(row - local.row0), 1, nr - 2))
-    j = int(np.clip(round(col - local.col0), 1, nc - 2))
-    e = local.el
-    acc = np.zeros(az_deg.size)
-    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        eps = local.sample(e[i, j] - 0.5 * (e[i - di, j - dj] + e[i + di, j + dj]), az_deg)
-        eps = eps - eps.mean()
-        acc += eps * eps
-    return MIDCELL_FACTOR ** 2 * acc / 4.0
+    return MIDCELL_FACTOR ** 2 * np.mean(d2 * d2, axis=0)
 
 
 def _model_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndarray) -> np.ndarray:
@@ -495,10 +502,7 @@ def _model_error_samples(local: LocalDB, row: float, col: float, az_deg: np.ndar
     """
     if not local.parallax:
         return _grid_error_samples(local, row, col, az_deg)
-    preds, w = local.corner_predictions(row, col)
-    dev = np.stack([local.sample(p, az_deg) for p in preds])
-    dev -= w @ dev
-    dev -= dev.mean(axis=1, keepdims=True)  # the mean offset is fitted
+    dev, w = _corner_deviations(local, row, col, az_deg)
     # the corners share errors their spread cannot show (quantised distances, terrain hidden at every
     # corner): keep the share of the bilinear grid error that re-projection left on the benchmark terrain
     return w @ (dev * dev) + PARALLAX_RESIDUAL_SHARE * _grid_error_samples(local, row, col, az_deg)
@@ -546,9 +550,7 @@ def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region:
     """
     if "row" not in free:
         return None
-    g = db.grid
-    lo_r, hi_r = max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)
-    lo_c, hi_c = max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1)
+    limits = _position_limits(db.grid, region)
     cur = ref
     local = None
     for _ in range(iterations):
@@ -556,12 +558,12 @@ def _reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region:
         r0, c0 = int(round(v["row"])), int(round(v["col"]))
         local = _local_db(db, r0, c0, half=3, parallax=PARALLAX)
         g2 = _model_error_samples(local, v["row"], v["col"], cur.enu_az_deg)
-        res_unw = cur.residual if cur.weights is None else cur.residual / np.sqrt(cur.weights)
+        res_unw = cur.unweighted_residual
         s_n = _noise_given_weights(res_unw ** 2, g2, max(res_unw.size - len(free) - 1, 1))
         # the model-error estimate must not explain the whole residual away (weights would all vanish)
         s_n = max(s_n, NOISE_FLOOR_FRACTION * float(np.mean(res_unw ** 2)), NOISE_FLOOR_DEG ** 2)
         w_abs = s_n / (s_n + g2)
-        bounds = {"row": (max(r0 - 2.5, lo_r), min(r0 + 2.5, hi_r)), "col": (max(c0 - 2.5, lo_c), min(c0 + 2.5, hi_c))}
+        bounds = _box(r0, c0, 2.5, limits)
         # the re-projected skyline has kinks (occlusion changes): stop once steps gain little
         cur = refine(local, theta, el, dict(v), free=free, tilt_prior=tilt_prior, noise_deg=math.sqrt(s_n),
                      bounds=bounds, weights=w_abs, max_iter=REWEIGHT_MAX_ITER, ftol=REWEIGHT_FTOL)
@@ -606,7 +608,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
         # a perfect coarse match (noise-free grid node) must not make the likelihood infinitely sharp, and
         # grid nodes near the truth elsewhere may miss it by the grid's interpolation error
         # (the coarse scores are unweighted sums: compare with the unweighted residual of the fix)
-        res_unw = ref.residual if ref.weights is None else ref.residual / np.sqrt(ref.weights)
+        res_unw = ref.unweighted_residual
         s2_unw = float(res_unw @ res_unw) / max(n - k, 1)
         s2c = max(s2c, (s2_unw + _grid_error_var(local, ref)) * infl)
         r0, c0 = smap.region.row0, smap.region.col0
@@ -635,9 +637,7 @@ def _make_fix(db: SkyDB, skyline: Skyline, q, smap: ScoreMap | None, ref: Refine
     sig_h = math.sqrt(max(var("heading"), 0) + heading_var_map)
     if status == "ok" and "row" in ref.free:
         # an optimum pinned to the edge of the searched area says the rover is probably beyond it
-        lim = {"row": (max(region.row0 - 0.5, 0), min(region.row0 + region.nrows - 0.5, g.ny - 1)),
-               "col": (max(region.col0 - 0.5, 0), min(region.col0 + region.ncols - 0.5, g.nx - 1))}
-        if any(min(v[k] - lo, hi - v[k]) < 1e-3 for k, (lo, hi) in lim.items()):
+        if any(min(v[k] - lo, hi - v[k]) < 1e-3 for k, (lo, hi) in _position_limits(g, region).items()):
             what = "database grid" if mode == "lost" else "search window"
             status, reason = "ambiguous", (f"the best match lies on the edge of the {what}: the rover is probably "
                                            "outside it" + (" (widen --radius)" if mode != "lost" else ""))

@@ -42,8 +42,9 @@ class LocalDB:
     az_start_deg: float
     dist: np.ndarray | None = None
     cell_m: tuple[float, float] | None = None
-    _heights: dict = field(default_factory=dict, repr=False)
-    _last: tuple = field(default=(None, None), repr=False)
+    _rep: Reprojector | None = field(default=None, repr=False)
+    _heights: dict = field(default_factory=dict, repr=False)  # cell corners -> relative eye heights (m)
+    _last: tuple = field(default=(None, None), repr=False)  # (row, col) -> skyline of the last call
 
     @property
     def n(self) -> int:
@@ -53,67 +54,63 @@ class LocalDB:
     def parallax(self) -> bool:
         return self.dist is not None and self.cell_m is not None
 
-    def _corners(self, row: float, col: float):
+    def _cell(self, row: float, col: float):
+        """Fractional window position (clamped), the 4 surrounding nodes and their bilinear weights."""
         nr, nc, _ = self.el.shape
         fr = min(max(float(row) - self.row0, 0.0), nr - 1.0)
         fc = min(max(float(col) - self.col0, 0.0), nc - 1.0)
         i0, j0 = min(int(fr), max(nr - 2, 0)), min(int(fc), max(nc - 2, 0))
         i1, j1 = min(i0 + 1, nr - 1), min(j0 + 1, nc - 1)
-        return fr, fc, i0, j0, i1, j1
+        ti, tj = fr - i0, fc - j0
+        corners = ((i0, j0), (i0, j1), (i1, j0), (i1, j1))
+        w = np.array([(1 - ti) * (1 - tj), (1 - ti) * tj, ti * (1 - tj), ti * tj])
+        return fr, fc, corners, w
 
     def skyline_at(self, row: float, col: float) -> np.ndarray:
         """(N,) skyline at fractional (row, col) (clamped to the window), degrees.
 
         Bilinear blend of the four surrounding node skylines, or with :attr:`parallax` the blend of
-        their re-projections to the position (horizons moved by their distance, eye heights
-        estimated from the skylines); azimuths no re-projection covers keep the bilinear value.
+        their re-projections to the position (:meth:`corner_predictions`).
         """
         key = (float(row), float(col))
         if self._last[0] == key:
             return self._last[1]
-        fr, fc, i0, j0, i1, j1 = self._corners(row, col)
-        ti, tj = fr - i0, fc - j0
-        e = self.el
-        out = ((1 - ti) * ((1 - tj) * e[i0, j0] + tj * e[i0, j1])
-               + ti * ((1 - tj) * e[i1, j0] + tj * e[i1, j1]))
         if self.parallax:
-            out = self._reprojected(fr, fc, (i0, j0, i1, j1), out)
+            preds, w = self.corner_predictions(row, col)
+        else:
+            _, _, corners, w = self._cell(row, col)
+            preds = np.stack([self.el[a, b] for a, b in corners])
+        out = w @ preds
         self._last = (key, out)
         return out
 
-    def _reprojected(self, fr: float, fc: float, cell: tuple[int, int, int, int], bilinear: np.ndarray) -> np.ndarray:
-        i0, j0, i1, j1 = cell
-        corners = [(i0, j0), (i0, j1), (i1, j0), (i1, j1)]
-        ti, tj = fr - i0, fc - j0
-        w = [(1 - ti) * (1 - tj), (1 - ti) * tj, ti * (1 - tj), ti * tj]
-        sx, sy = self.cell_m
-        rep = self._heights.get("rep")
-        if rep is None:
-            rep = self._heights["rep"] = Reprojector(self.n, self.az_start_deg)
-        z = self._heights.get(cell)
-        if z is None:
-            offs = [(b * sx, a * sy) for a, b in corners]
-            z = self._heights[cell] = rep.relative_heights([self.el[a, b] for a, b in corners],
-                                                           [self.dist[a, b] for a, b in corners], offs)
-        zp = float(np.dot(w, z))
-        acc = np.zeros(self.n)
-        preds = []
-        for k, (a, b) in enumerate(corners):
-            sk = rep.skyline(self.el[a, b], self.dist[a, b], (fc - b) * sx, (fr - a) * sy, zp - z[k])
-            sk = np.where(np.isfinite(sk), sk, bilinear)
-            preds.append(sk)
-            acc += w[k] * sk
-        self._heights["last_preds"] = ((fr, fc), np.array(preds), np.array(w))
-        return acc
-
     def corner_predictions(self, row: float, col: float) -> tuple[np.ndarray, np.ndarray]:
-        """Parallax mode: the four corners' re-projected skylines at (row, col), (4, N) degrees, and their
-        bilinear weights (4,).  Their spread about the blend measures the interpolation's own error."""
+        """Parallax mode: the four surrounding nodes' skylines re-projected to (row, col), (4, N) degrees,
+        and their bilinear weights (4,).
+
+        Horizons are moved by their stored distances and the eye by the heights estimated from the
+        skylines (:class:`board.pose.parallax.Reprojector`); azimuths a re-projection does not cover
+        keep the bilinear blend.  The spread of the four about their blend measures the
+        interpolation's own error.
+        """
         if not self.parallax:
             raise ValueError("corner predictions need horizon distances (parallax mode)")
-        self._last = (None, None)
-        self.skyline_at(row, col)
-        _, preds, w = self._heights["last_preds"]
+        fr, fc, corners, w = self._cell(row, col)
+        nodes = np.stack([self.el[a, b] for a, b in corners])
+        dists = [self.dist[a, b] for a, b in corners]
+        bilinear = w @ nodes
+        sx, sy = self.cell_m
+        if self._rep is None:
+            self._rep = Reprojector(self.n, self.az_start_deg)
+        z = self._heights.get(corners)
+        if z is None:
+            z = self._heights[corners] = self._rep.relative_heights(
+                list(nodes), dists, [(b * sx, a * sy) for a, b in corners])
+        zp = float(w @ z)
+        preds = np.empty_like(nodes)
+        for k, (a, b) in enumerate(corners):
+            sk = self._rep.skyline(nodes[k], dists[k], (fc - b) * sx, (fr - a) * sy, zp - z[k])
+            preds[k] = np.where(np.isfinite(sk), sk, bilinear)
         return preds, w
 
     def sample(self, sky: np.ndarray, az_deg: np.ndarray) -> np.ndarray:
@@ -150,6 +147,11 @@ class Refined:
     n_iter: int = 0
     enu_az_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
     weights: np.ndarray | None = None
+
+    @property
+    def unweighted_residual(self) -> np.ndarray:
+        """(n_seen,) residual in degrees without the sample weights."""
+        return self.residual if self.weights is None else self.residual / np.sqrt(self.weights)
 
 
 def _enu_az(vb: np.ndarray, v: dict) -> np.ndarray:
