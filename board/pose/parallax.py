@@ -99,10 +99,7 @@ class Reprojector:
                 if i == j:
                     continue
                 dx, dy = offsets[j][0] - offsets[i][0], offsets[j][1] - offsets[i][1]
-                az, el, d2, valid = self.points(els[i], dists[i], dx, dy, 0.0)
-                pred = envelope_on_grid(az, el, valid, az0_deg=self.az0, n=self.n)
-                # the envelope's distances: those of the re-projected points nearest in azimuth
-                r = els[j] - pred
+                r = els[j] - self.skyline(els[i], dists[i], dx, dy, 0.0)
                 a = (180.0 / math.pi) / np.maximum(dists[j], MIN_DISTANCE_M)  # -d el / d dz, degrees per metre
                 m = np.isfinite(r) & (np.abs(r) < HEIGHT_FIT_MAX_RESIDUAL_DEG) & (dists[j] > 4 * MIN_DISTANCE_M)
                 if m.sum() < 10:
