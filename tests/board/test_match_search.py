@@ -12,6 +12,21 @@ def _exhaustive(db, q):
     return s.min(axis=1).reshape(db.grid.ny, db.grid.nx), s
 
 
+def _assert_exact_pruning(pruned, ref, full, nx: int, factor: float) -> None:
+    """Pruned search vs exhaustive scores ``ref`` (per position) and ``full`` (per position and heading):
+    same argmin and best heading, exact scores within ``factor`` of the best, lower bounds elsewhere."""
+    assert pruned.n_pruned > 0  # the bound did prune: the test exercises it
+    assert pruned.argmin() == np.unravel_index(np.argmin(ref), ref.shape)
+    best = ref.min()
+    np.testing.assert_allclose(pruned.score.min(), best, rtol=1e-12)
+    ex = pruned.exact
+    np.testing.assert_allclose(pruned.score[ex], ref[ex], rtol=1e-9, atol=1e-9)
+    assert np.all(pruned.score[~ex] <= ref[~ex] * (1 + 1e-9) + 1e-9)
+    assert np.all(ex[ref <= factor * best])
+    i, j = pruned.argmin()
+    assert pruned.shift[i, j] == np.argmin(full[i * nx + j])
+
+
 @pytest.mark.parametrize("model", ["offset", "tilt"])
 @pytest.mark.parametrize("arc", [360, 120])
 def test_streamed_search_equals_exhaustive(mountain_world, model, arc):
@@ -38,19 +53,7 @@ def test_pruning_returns_the_exhaustive_argmin(mountain_world, model, seed):
     q = prepare_query(sky.elevation_deg, model=model)
     pruned = search(w.db, q, prune=True, prune_factor=2.0)
     ref, full = _exhaustive(w.db, q)
-    assert pruned.n_pruned > 0  # the bound did prune: the test exercises it
-    assert pruned.argmin() == np.unravel_index(np.argmin(ref), ref.shape)
-    best = ref.min()
-    np.testing.assert_allclose(pruned.score.min(), best, rtol=1e-12)
-    # every position within the factor of the best is scored exactly; pruned ones hold a lower bound
-    ex = pruned.exact
-    np.testing.assert_allclose(pruned.score[ex], ref[ex], rtol=1e-9, atol=1e-9)
-    assert np.all(pruned.score[~ex] <= ref[~ex] * (1 + 1e-9) + 1e-9)
-    assert np.all(ex[ref <= 2.0 * best])
-    # the best heading too
-    i, j = pruned.argmin()
-    k = i * w.db.grid.nx + j
-    assert pruned.shift[i, j] == np.argmin(full[k])
+    _assert_exact_pruning(pruned, ref, full, w.db.grid.nx, 2.0)
 
 
 def test_region_disc_and_heading_window(mountain_world):
@@ -119,14 +122,5 @@ def test_partial_pruning_returns_the_exhaustive_argmin(mountain_world, monkeypat
     if allowed is not None:
         full = full + np.where(allowed, 0.0, np.inf)
     ref = full.min(axis=1).reshape(w.db.grid.ny, w.db.grid.nx)
-    assert pruned.n_pruned > 0
-    assert pruned.argmin() == np.unravel_index(np.argmin(ref), ref.shape)
-    best = ref.min()
-    np.testing.assert_allclose(pruned.score.min(), best, rtol=1e-12)
-    ex = pruned.exact
-    np.testing.assert_allclose(pruned.score[ex], ref[ex], rtol=1e-9, atol=1e-9)
-    assert np.all(pruned.score[~ex] <= ref[~ex] * (1 + 1e-9) + 1e-9)
-    assert np.all(ex[ref <= 2.0 * best])
-    i, j = pruned.argmin()
-    assert pruned.shift[i, j] == np.argmin(full[i * w.db.grid.nx + j])
-    assert pruned.n_pruned == int((~ex).sum())
+    _assert_exact_pruning(pruned, ref, full, w.db.grid.nx, 2.0)
+    assert pruned.n_pruned == int((~pruned.exact).sum())
