@@ -18,6 +18,17 @@ def _err(fix, x, y, h):
     return math.hypot(fix.x - x, fix.y - y), abs(float(wrap_deg180(fix.heading_deg - h)))
 
 
+def _heading_mode_error(w, rng, offset_m: float, margin_steps: float) -> float:
+    """Heading error (deg) of heading mode from a prior ``offset_m`` off, tilted mast, heading prior within 8 deg."""
+    x, y = w.random_xy(rng, margin_steps=margin_steps)
+    h = rng.uniform(0, 360)
+    a = rng.uniform(0, 2 * np.pi)
+    prior = (x + offset_m * np.cos(a), y + offset_m * np.sin(a))
+    sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
+    fix = locate(w.db, sky, mode="heading", prior_xy=prior, heading_prior_deg=h + rng.uniform(-8, 8))
+    return _err(fix, x, y, h)[1]
+
+
 @pytest.mark.parametrize("pitch,roll", [(0, 0), (5, 0), (0, -5), (10, 0), (0, 10), (-7, 7)])
 def test_lost_in_space_full_panorama_with_tilt(raymarch_world, pitch, roll):
     w = raymarch_world
@@ -86,13 +97,7 @@ def test_heading_mode_near_the_true_position(raymarch_world, offset_m):
     w = raymarch_world
     rng = np.random.default_rng(int(offset_m * 2) + 3)
     for _ in range(3):
-        x, y = w.random_xy(rng, margin_steps=5)
-        h = rng.uniform(0, 360)
-        a = rng.uniform(0, 2 * np.pi)
-        prior = (x + offset_m * np.cos(a), y + offset_m * np.sin(a))
-        sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
-        fix = locate(w.db, sky, mode="heading", prior_xy=prior, heading_prior_deg=h + rng.uniform(-8, 8))
-        assert _err(fix, x, y, h)[1] <= 1.0
+        assert _heading_mode_error(w, rng, offset_m, margin_steps=5) <= 1.0
 
 
 def test_heading_sweep_real_dem(real_world):
@@ -103,17 +108,8 @@ def test_heading_sweep_real_dem(real_world):
     """
     w = real_world
     rng = np.random.default_rng(8)
-    errs = []
-    for offset_m in (0.0, 5.0, 10.0, 15.0, 20.0):
-        for _ in range(4):
-            x, y = w.random_xy(rng, margin_steps=3)
-            h = rng.uniform(0, 360)
-            a = rng.uniform(0, 2 * np.pi)
-            prior = (x + offset_m * np.cos(a), y + offset_m * np.sin(a))
-            sky = w.query(x, y, heading=h, pitch=rng.uniform(-5, 5), roll=rng.uniform(-5, 5), noise=0.05, rng=rng)
-            fix = locate(w.db, sky, mode="heading", prior_xy=prior, heading_prior_deg=h + rng.uniform(-8, 8))
-            errs.append(_err(fix, x, y, h)[1])
-    errs = np.array(errs)
+    errs = np.array([_heading_mode_error(w, rng, offset_m, margin_steps=3)
+                     for offset_m in (0.0, 5.0, 10.0, 15.0, 20.0) for _ in range(4)])
     assert np.mean(errs <= 1.0) >= 0.9 and errs.max() <= 2.0
     assert np.all(errs[:4] <= 0.2)  # at the true position
 
