@@ -135,13 +135,18 @@ def _fractal(n, seed, amp, cell):
     return (amp * (z - z.mean()) / z.std()).astype(np.float32)
 
 
+def _one_level(n: int, cell: float, *, seed: int, amp: float):
+    """A centred single-level fractal terrain on a 1000 km body, as a MultiResTerrain and as a DemRaster."""
+    z = _fractal(n, seed=seed, amp=amp, cell=cell)
+    x0, y0 = -n * cell / 2, n * cell / 2
+    body = Body("custom", 1e6)
+    return (MultiResTerrain([TerrainLevel(z, x0, y0, cell)], "", body, (0.0, 0.0)),
+            DemRaster(z, (x0, cell, 0.0, y0, 0.0, -cell), "", body))
+
+
 def test_single_level_matches_brute_force_reference():
     """On one level (no multi-resolution), skipping and step growth must not change the horizon."""
-    cell, n = 10.0, 400
-    z = _fractal(n, seed=3, amp=120.0, cell=cell)
-    x0, y0 = -n * cell / 2, n * cell / 2
-    terrain = MultiResTerrain([TerrainLevel(z, x0, y0, cell)], "", Body("custom", 1e6), (0.0, 0.0))
-    dem = DemRaster(z, (x0, cell, 0.0, y0, 0.0, -cell), "", Body("custom", 1e6))
+    terrain, dem = _one_level(400, 10.0, seed=3, amp=120.0)
     spec = RenderSpec(camera_height_m=2.0, n_azimuth=180, body_radius_m=1e6)
     rng = np.random.default_rng(1)
     diffs, exact = [], []
@@ -260,11 +265,7 @@ def test_wall_just_beyond_the_finest_level_is_not_skipped():
 def test_eyes_on_the_lattice_match_the_accurate_reference():
     """Eyes exactly on cell centres and lattice lines (grid positions usually are): rays start on a
     cell boundary, and those going backwards enter their first cell at distance 0."""
-    cell, n = 10.0, 200
-    z = _fractal(n, seed=7, amp=40.0, cell=cell)
-    x0, y0 = -n * cell / 2, n * cell / 2
-    terrain = MultiResTerrain([TerrainLevel(z, x0, y0, cell)], "", Body("custom", 1e6), (0.0, 0.0))
-    dem = DemRaster(z, (x0, cell, 0.0, y0, 0.0, -cell), "", Body("custom", 1e6))
+    terrain, dem = _one_level(200, 10.0, seed=7, amp=40.0)
     spec = RenderSpec(camera_height_m=1.0, n_azimuth=360, body_radius_m=1e6)
     d = []
     for x, y in [(5.0, 5.0), (-95.0, 305.0), (5.0, 7.3), (-41.7, 45.0)]:   # centres, a column, a row
