@@ -73,6 +73,15 @@ class Server:
             time.sleep(0.2)
         raise TimeoutError(f"job {job_id} still {j['state']} after {timeout} s; log: {self.read_log()}")
 
+    def wait_tiles(self, job_id: str, n: int, *, timeout: float = 240.0) -> dict:
+        """Poll the job until at least ``n`` tiles are done (or ``timeout`` s); returns its last status."""
+        t_end = time.monotonic() + timeout
+        while True:
+            j = self.client.get(f"/v1/jobs/{job_id}").json()
+            if j["tiles_done"] >= n or time.monotonic() >= t_end:
+                return j
+            time.sleep(0.05)
+
     def kill9(self) -> None:
         """SIGKILL the server process only (its Dask workers notice their parent died and exit)."""
         os.kill(self.proc.pid, signal.SIGKILL)

@@ -141,12 +141,7 @@ def test_kill9_mid_job_resumes_to_an_identical_database(clean_run, work, service
         dem = srv.upload(service_dem.path).json()
         job_id = srv.client.post("/v1/jobs", json=job_spec(dem)).json()["id"]
         assert job_id == job_a["id"]  # same spec, same job id on any server
-        t_end = time.monotonic() + 240
-        while time.monotonic() < t_end:
-            j = srv.client.get(f"/v1/jobs/{job_id}").json()
-            if j["tiles_done"] >= 3:
-                break
-            time.sleep(0.05)
+        srv.wait_tiles(job_id, 3)
         workers = _children(srv.proc.pid)
         srv.kill9()
     except BaseException:
@@ -209,9 +204,7 @@ def _dask_worker_pids(server_pid: int) -> list[int]:
 def test_kill9_of_a_worker_mid_job_loses_and_repeats_nothing(server_a, clean_run):
     _, dem, _, _ = clean_run
     job_id = server_a.client.post("/v1/jobs", json=job_spec(dem, camera_height_m=1.7)).json()["id"]
-    t_end = time.monotonic() + 240
-    while server_a.client.get(f"/v1/jobs/{job_id}").json()["tiles_done"] < 3 and time.monotonic() < t_end:
-        time.sleep(0.05)
+    server_a.wait_tiles(job_id, 3)
     workers = _dask_worker_pids(server_a.proc.pid)
     assert workers, "no Dask worker process found under the server"
     os.kill(workers[0], 9)
@@ -231,9 +224,7 @@ def test_kill9_of_a_worker_mid_job_loses_and_repeats_nothing(server_a, clean_run
 def test_failing_tiles_are_retried_then_the_job_fails_with_the_reason(server_a, clean_run):
     _, dem, _, _ = clean_run
     job_id = server_a.client.post("/v1/jobs", json=job_spec(dem, camera_height_m=1.9)).json()["id"]
-    t_end = time.monotonic() + 240
-    while server_a.client.get(f"/v1/jobs/{job_id}").json()["tiles_done"] < 1 and time.monotonic() < t_end:
-        time.sleep(0.05)
+    server_a.wait_tiles(job_id, 1)
     # damage the store under the running job (as a failing disk would): every later tile write fails
     (server_a.data_dir / "jobs" / job_id / "db.zarr" / "elevation" / "zarr.json").write_text("{broken")
     j = server_a.wait_job(job_id)
