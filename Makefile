@@ -5,7 +5,8 @@ export BLENDER_USER_RESOURCES ?= $(CURDIR)/.cache/blender
 export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
-.PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean
+.PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
+	image image-smoke multinode-smoke
 
 install:
 	bash scripts/install.sh
@@ -36,6 +37,16 @@ bench-blender: install
 
 bench-service: install
 	$(PY) -m benchmarks.bench_service
+
+# The service image (not part of `make test`: minutes of apt and pip); see docs/service.md.
+image:
+	bash scripts/image_build.sh
+
+image-smoke:
+	bash scripts/image_smoke.sh
+
+multinode-smoke: install
+	$(PY) -m pytest -q -m service tests/render_service/test_multinode.py
 
 clean:
 	rm -rf .cache build *.egg-info demo_out

@@ -1,0 +1,82 @@
+#!/bin/sh
+# Entry point of the render-service image (installed as /usr/local/bin/skyloc-role, run under tini).
+# One image, three roles, chosen by the first argument:
+#
+#   api        skyloc serve on 0.0.0.0:$SKYLOC_PORT (8000) with data in $SKYLOC_DATA_DIR (/data);
+#              a LocalCluster unless SKYLOC_SCHEDULER (tls://scheduler:8786) names a scheduler.
+#              Needs SKYLOC_TOKEN or --token-file (it refuses a non-loopback interface without one).
+#   scheduler  dask scheduler on 0.0.0.0:$SKYLOC_DASK_PORT (8786), no dashboard
+#   worker     dask worker connecting to $SKYLOC_SCHEDULER, one thread per process
+#              ($SKYLOC_WORKER_PROCESSES processes, default 1), no dashboard
+#   health     the image's HEALTHCHECK for whichever role this container runs (no token needed)
+#   anything else is run as a command (skyloc db render ..., dask ..., bash)
+#
+# Dask TLS for every role (and for the API server's client): mount a folder with the CA certificate
+# and this node's certificate + key, and set SKYLOC_TLS_CA_FILE, SKYLOC_TLS_CERT, SKYLOC_TLS_KEY.
+# They become Dask's own configuration (DASK_DISTRIBUTED__COMM__TLS__*, require-encryption on), so
+# a connection without a certificate signed by that CA is refused.  Extra arguments after the role
+# are passed to skyloc serve / dask scheduler / dask worker.
+set -eu
+
+ROLE=${1:-api}
+[ $# -gt 0 ] && shift
+ROLE_FILE=/tmp/skyloc-role
+
+tls_env() {
+  if [ -n "${SKYLOC_TLS_CA_FILE:-}" ]; then
+    for f in "$SKYLOC_TLS_CA_FILE" "${SKYLOC_TLS_CERT:?SKYLOC_TLS_CERT must name this node's certificate}" \
+             "${SKYLOC_TLS_KEY:?SKYLOC_TLS_KEY must name this node's private key}"; do
+      [ -r "$f" ] || { echo "skyloc-role: cannot read $f (mount the certificates readable by uid $(id -u))" >&2; exit 2; }
+    done
+    export DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True
+    export DASK_DISTRIBUTED__COMM__TLS__CA_FILE="$SKYLOC_TLS_CA_FILE"
+    for who in SCHEDULER WORKER CLIENT; do
+      export "DASK_DISTRIBUTED__COMM__TLS__${who}__CERT=$SKYLOC_TLS_CERT"
+      export "DASK_DISTRIBUTED__COMM__TLS__${who}__KEY=$SKYLOC_TLS_KEY"
+    done
+    PROTO=tls
+  else
+    PROTO=tcp
+  fi
+}
+
+case "$ROLE" in
+  api)
+    tls_env
+    echo api >"$ROLE_FILE"
+    exec skyloc serve --host 0.0.0.0 --port "${SKYLOC_PORT:-8000}" --data "${SKYLOC_DATA_DIR:-/data}" "$@"
+    ;;
+  scheduler)
+    tls_env
+    echo scheduler >"$ROLE_FILE"
+    exec dask scheduler --protocol "$PROTO" --host 0.0.0.0 --port "${SKYLOC_DASK_PORT:-8786}" --no-dashboard "$@"
+    ;;
+  worker)
+    tls_env
+    : "${SKYLOC_SCHEDULER:?SKYLOC_SCHEDULER must name the scheduler, e.g. tls://scheduler:8786}"
+    echo worker >"$ROLE_FILE"
+    exec dask worker "$SKYLOC_SCHEDULER" --nthreads 1 --nworkers "${SKYLOC_WORKER_PROCESSES:-1}" \
+      --no-dashboard --local-directory /tmp/dask-worker "$@"
+    ;;
+  health)
+    exec python - "$(cat "$ROLE_FILE" 2>/dev/null || echo none)" <<'EOF'
+import os, socket, sys, urllib.request
+role = sys.argv[1]
+if role == "api":  # /healthz needs no token; "degraded" (Dask unreachable) still answers 200
+    port = os.environ.get("SKYLOC_PORT", "8000")
+    urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=4).read()
+elif role == "scheduler":
+    socket.create_connection(("127.0.0.1", int(os.environ.get("SKYLOC_DASK_PORT", "8786"))), timeout=4).close()
+elif role == "worker":  # alive while connected to its scheduler
+    addr = os.environ["SKYLOC_SCHEDULER"].split("://")[-1]
+    host, _, port = addr.rpartition(":")
+    socket.create_connection((host, int(port)), timeout=4).close()
+else:
+    sys.exit(f"no role started in this container ({role})")
+EOF
+    ;;
+  *)
+    tls_env
+    exec "$ROLE" "$@"
+    ;;
+esac
