@@ -1,0 +1,115 @@
+"""The Dask engine's LocalCluster is behind credentials: mutual TLS with a generated key only its user reads.
+
+A real LocalCluster (one worker process) from :func:`render_service.engine.dask_client`; the attacker is
+every way a local user could try to reach it: plain ``tcp://``, ``tls://`` without a certificate, with a
+self-made certificate, a raw TLS socket, and the scheduler's HTTP port (which used to answer
+``/json/identity.json`` with the scheduler's address).  The positive control runs code with the credentials.
+"""
+from __future__ import annotations
+
+import os
+import socket
+import ssl
+import stat
+from pathlib import Path
+
+import httpx
+import pytest
+
+from board.errors import InvalidInputError
+from render_service.dask_tls import generate_tls_files
+from render_service.engine import check_dashboard_address, dask_client
+
+pytestmark = [pytest.mark.service]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    tls_dir = tmp_path_factory.mktemp("tls") / "creds"
+    with dask_client(n_workers=1, tls_dir=tls_dir) as client:
+        yield client, tls_dir
+
+
+def _host_port(address: str) -> tuple[str, int]:
+    host, port = address.split("://", 1)[1].rsplit(":", 1)
+    return host, int(port)
+
+
+def test_credentials_are_private_files(cluster):
+    _, tls_dir = cluster
+    assert stat.S_IMODE(tls_dir.stat().st_mode) == 0o700
+    files = sorted(tls_dir.iterdir())
+    assert [p.name for p in files] == ["dask-cert.pem", "dask-key.pem"]
+    for p in files:
+        assert stat.S_IMODE(p.stat().st_mode) == 0o600 and p.stat().st_uid == os.getuid()
+
+
+def test_the_credentialed_client_runs_code(cluster):
+    client, _ = cluster
+    assert client.scheduler.address.startswith("tls://127.0.0.1:")
+    pids = client.run(os.getpid)
+    assert len(pids) == 1 and all(p != os.getpid() for p in pids.values())  # a real worker process
+    assert client.submit(sum, [1, 2, 3]).result() == 6
+
+
+def test_clients_without_the_credentials_cannot_connect(cluster, tmp_path):
+    from distributed import Client
+
+    client, _ = cluster
+    addr = client.scheduler.address
+    with pytest.raises(TypeError, match="ssl_context"):  # tls:// with no security at all
+        Client(addr, timeout=3)
+    with pytest.raises(OSError):  # the same port in clear text
+        Client(addr.replace("tls://", "tcp://"), timeout=3)
+    own = generate_tls_files(tmp_path / "attacker").security()  # a well-formed certificate of another CA
+    with pytest.raises(OSError):
+        Client(addr, timeout=3, security=own)
+    assert len(client.run(os.getpid)) == 1  # the cluster is unharmed
+
+
+def test_raw_tls_without_a_client_certificate_is_refused(cluster):
+    client, _ = cluster
+    host, port = _host_port(client.scheduler.address)
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = False
+    ctx.verify_mode = ssl.CERT_NONE  # the attacker does not care who the server is
+    with socket.create_connection((host, port), timeout=5) as raw:
+        with pytest.raises((ssl.SSLError, ConnectionError, OSError)):
+            with ctx.wrap_socket(raw) as tls:
+                tls.sendall(b"\x00" * 64)  # TLS 1.3 reports the missing certificate on first use
+                assert tls.recv(1) == b""  # ... or the server just closes
+                raise ConnectionError("closed by the server")
+
+
+def test_no_dashboard_and_no_http_routes_unless_asked(cluster):
+    client, _ = cluster
+    info = client.scheduler_info()
+    host, _ = _host_port(client.scheduler.address)
+    http_port = info["services"].get("dashboard")
+    assert http_port != 8787  # not the well-known port
+    if http_port is not None:  # Dask always listens for HTTP: there must be nothing behind it
+        for route in ("/json/identity.json", "/status", "/health", "/metrics", "/proxy/8786/127.0.0.1/status"):
+            assert httpx.get(f"http://{host}:{http_port}{route}", timeout=5).status_code == 404, route
+    for w in info["workers"].values():
+        port = w.get("services", {}).get("dashboard")
+        if port is not None:
+            assert httpx.get(f"http://{host}:{port}/health", timeout=5).status_code == 404
+
+
+def test_dashboard_only_on_loopback():
+    assert check_dashboard_address(None) is None
+    assert check_dashboard_address("127.0.0.1:8790") == "127.0.0.1:8790"
+    for bad in ("0.0.0.0:8787", ":8787", "example.org:8787", "8787"):
+        with pytest.raises(InvalidInputError, match="loopback"):
+            check_dashboard_address(bad)
+
+
+def test_the_temporary_credentials_are_removed_on_exit():
+    import tempfile
+
+    before = set(Path(tempfile.gettempdir()).glob("skyloc-dask-tls-*"))
+    with dask_client(n_workers=1, processes=False) as client:
+        assert client.submit(abs, -2).result() == 2
+        during = set(Path(tempfile.gettempdir()).glob("skyloc-dask-tls-*")) - before
+        assert len(during) == 1 and stat.S_IMODE(next(iter(during)).stat().st_mode) == 0o700
+    assert not (set(Path(tempfile.gettempdir()).glob("skyloc-dask-tls-*")) - before)
