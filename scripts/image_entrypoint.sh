@@ -11,6 +11,8 @@
 #   health     the image's HEALTHCHECK for whichever role this container runs (no token needed)
 #   anything else is run as a command (skyloc db render ..., dask ..., bash)
 #
+# SKYLOC_BIND_HOST (0.0.0.0) is the interface of the api and scheduler roles.
+#
 # Dask TLS for every role (and for the API server's client): mount a folder with the CA certificate
 # and this node's certificate + key, and set SKYLOC_TLS_CA_FILE, SKYLOC_TLS_CERT, SKYLOC_TLS_KEY.
 # They become Dask's own configuration (DASK_DISTRIBUTED__COMM__TLS__*, require-encryption on), so
@@ -20,7 +22,8 @@ set -eu
 
 ROLE=${1:-api}
 [ $# -gt 0 ] && shift
-ROLE_FILE=/tmp/skyloc-role
+ROLE_FILE=${SKYLOC_ROLE_FILE:-/tmp/skyloc-role}   # which role this container runs (for `health`)
+BIND=${SKYLOC_BIND_HOST:-0.0.0.0}
 
 tls_env() {
   if [ -n "${SKYLOC_TLS_CA_FILE:-}" ]; then
@@ -44,19 +47,19 @@ case "$ROLE" in
   api)
     tls_env
     echo api >"$ROLE_FILE"
-    exec skyloc serve --host 0.0.0.0 --port "${SKYLOC_PORT:-8000}" --data "${SKYLOC_DATA_DIR:-/data}" "$@"
+    exec skyloc serve --host "$BIND" --port "${SKYLOC_PORT:-8000}" --data "${SKYLOC_DATA_DIR:-/data}" "$@"
     ;;
   scheduler)
     tls_env
     echo scheduler >"$ROLE_FILE"
-    exec dask scheduler --protocol "$PROTO" --host 0.0.0.0 --port "${SKYLOC_DASK_PORT:-8786}" --no-dashboard "$@"
+    exec dask scheduler --protocol "$PROTO" --host "$BIND" --port "${SKYLOC_DASK_PORT:-8786}" --no-dashboard "$@"
     ;;
   worker)
     tls_env
     : "${SKYLOC_SCHEDULER:?SKYLOC_SCHEDULER must name the scheduler, e.g. tls://scheduler:8786}"
     echo worker >"$ROLE_FILE"
     exec dask worker "$SKYLOC_SCHEDULER" --nthreads 1 --nworkers "${SKYLOC_WORKER_PROCESSES:-1}" \
-      --no-dashboard --local-directory /tmp/dask-worker "$@"
+      --no-dashboard --local-directory "${SKYLOC_WORKER_DIR:-/tmp/dask-worker}" "$@"
     ;;
   health)
     exec python - "$(cat "$ROLE_FILE" 2>/dev/null || echo none)" <<'EOF'
