@@ -8,6 +8,7 @@
 #   scheduler  dask scheduler on 0.0.0.0:$SKYLOC_DASK_PORT (8786), no dashboard
 #   worker     dask worker connecting to $SKYLOC_SCHEDULER, one thread per process
 #              ($SKYLOC_WORKER_PROCESSES processes, default 1), no dashboard
+#   tls DIR    make a CA and a node certificate + key for Dask TLS in DIR (openssl)
 #   health     the image's HEALTHCHECK for whichever role this container runs (no token needed)
 #   anything else is run as a command (skyloc db render ..., dask ..., bash)
 #
@@ -60,6 +61,29 @@ case "$ROLE" in
     echo worker >"$ROLE_FILE"
     exec dask worker "$SKYLOC_SCHEDULER" --nthreads 1 --nworkers "${SKYLOC_WORKER_PROCESSES:-1}" \
       --no-dashboard --local-directory "${SKYLOC_WORKER_DIR:-/tmp/dask-worker}" "$@"
+    ;;
+  tls)
+    # skyloc-role tls DIR [NAME...]: a CA and one node certificate (for NAMEs, default the compose
+    # service names) in DIR; as root the files are handed to the image user (uid 10001), key mode 0600.
+    out=${1:?usage: skyloc-role tls DIR [NAME...]}
+    [ $# -gt 0 ] && shift
+    [ $# -gt 0 ] || set -- scheduler worker api localhost
+    [ -e "$out/ca.pem" ] && { echo "skyloc-role: $out/ca.pem exists; remove $out to make new certificates" >&2; exit 2; }
+    mkdir -p "$out"
+    umask 077
+    san="IP:127.0.0.1"
+    for n in "$@"; do san="$san,DNS:$n"; done
+    printf 'subjectAltName=%s\nextendedKeyUsage=serverAuth,clientAuth\n' "$san" >"$out/node.ext"
+    openssl req -x509 -newkey rsa:2048 -nodes -keyout "$out/ca.key" -out "$out/ca.pem" -days "${SKYLOC_TLS_DAYS:-825}" \
+      -subj "/CN=skyloc deployment CA" 2>/dev/null
+    openssl req -newkey rsa:2048 -nodes -keyout "$out/node.key" -out "$out/node.csr" -subj "/CN=skyloc-node" 2>/dev/null
+    openssl x509 -req -in "$out/node.csr" -CA "$out/ca.pem" -CAkey "$out/ca.key" -CAcreateserial \
+      -out "$out/node.pem" -days "${SKYLOC_TLS_DAYS:-825}" -extfile "$out/node.ext" 2>/dev/null
+    rm -f "$out/node.csr" "$out/node.ext" "$out/ca.srl"
+    chmod 0644 "$out/ca.pem" "$out/node.pem"
+    [ "$(id -u)" = 0 ] && chown -R "${SKYLOC_TLS_OWNER:-10001:10001}" "$out"
+    echo "skyloc-role: wrote $out/{ca.pem,ca.key,node.pem,node.key} (keep ca.key offline; nodes need the other three)" >&2
+    exit 0
     ;;
   health)
     exec python - "$(cat "$ROLE_FILE" 2>/dev/null || echo none)" <<'EOF'

@@ -9,16 +9,17 @@
 # file that is deleted when the command ends, inside the same RUN: no layer ever holds it.
 # Without the secret the command runs unchanged (a build with no TLS-inspecting proxy).
 set -eu
-SECRET=/run/secrets/ca-bundle
+SECRET=${SKYLOC_CA_SECRET:-/run/secrets/ca-bundle}   # overridable for the tests only
+SYSTEM_CA=${SKYLOC_SYSTEM_CA:-/etc/ssl/certs/ca-certificates.crt}
 if [ ! -s "$SECRET" ]; then
   exec "$@"
 fi
-tmp=$(mktemp -d /tmp/skyloc-ca.XXXXXX)
-apt_conf=/etc/apt/apt.conf.d/99skyloc-build-ca
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/skyloc-ca.XXXXXX")
+apt_conf=${SKYLOC_APT_CA_CONF:-/etc/apt/apt.conf.d/99skyloc-build-ca}
 cleanup() { rm -rf "$tmp" "$apt_conf"; }
 trap cleanup EXIT INT TERM
-if [ -s /etc/ssl/certs/ca-certificates.crt ]; then
-  cat /etc/ssl/certs/ca-certificates.crt "$SECRET" >"$tmp/ca.pem"
+if [ -s "$SYSTEM_CA" ]; then
+  cat "$SYSTEM_CA" "$SECRET" >"$tmp/ca.pem"
 else
   cat "$SECRET" >"$tmp/ca.pem"
 fi

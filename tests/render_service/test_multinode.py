@@ -2,7 +2,7 @@
 
 A Dask scheduler, two Dask workers and the API server are started by the image's entry point
 (``scripts/image_entrypoint.sh``, the ``scheduler`` / ``worker`` / ``api`` roles, exactly the commands
-compose.yaml runs), with Dask TLS from a CA and node certificate made here by ``openssl``.  A database
+compose.yaml runs), with Dask TLS from a CA and node certificate made by the image's ``tls`` role.  A database
 job is split across both workers, one worker (nanny and process) is killed with SIGKILL mid-job, the job
 finishes on the other, and the database equals the single-process render of ``skyloc db render``'s code
 path (:func:`render_service.dbrender.render_database`) tile for tile.  A client without the certificates
@@ -37,23 +37,11 @@ N_TILES = 64
 
 
 def make_tls(folder: Path) -> dict[str, Path]:
-    """A CA and one node certificate for 127.0.0.1 / localhost signed by it (PEM files, key mode 0600)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    ca_key, ca, key, csr, cert = (folder / n for n in ("ca.key", "ca.pem", "node.key", "node.csr", "node.pem"))
-    ext = folder / "node.ext"
-    ext.write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\nextendedKeyUsage=serverAuth,clientAuth\n")
-
-    def run(*args: str) -> None:
-        subprocess.run(["openssl", *args], check=True, capture_output=True)
-
-    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(ca_key), "-out", str(ca), "-days", "2",
-        "-subj", "/CN=skyloc-test-ca")
-    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(csr), "-subj", "/CN=skyloc-node")
-    run("x509", "-req", "-in", str(csr), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial", "-out", str(cert),
-        "-days", "2", "-extfile", str(ext))
-    for k in (ca_key, key):
-        k.chmod(0o600)
-    return {"ca": ca, "cert": cert, "key": key}
+    """A CA and a node certificate for 127.0.0.1 made by the image's ``tls`` role (openssl), owned by us."""
+    env = {**os.environ, "SKYLOC_TLS_OWNER": f"{os.getuid()}:{os.getgid()}", "SKYLOC_TLS_DAYS": "2"}
+    subprocess.run(["sh", str(ENTRY), "tls", str(folder), "localhost"], check=True, capture_output=True, env=env)
+    assert (folder / "node.key").stat().st_mode & 0o077 == 0  # the private keys are private
+    return {"ca": folder / "ca.pem", "cert": folder / "node.pem", "key": folder / "node.key"}
 
 
 class Role:
