@@ -50,7 +50,7 @@ def parse_dockerfile(text: str) -> list[Instruction]:
         if not buf:
             start = n
         if line.endswith("\\"):
-            buf += line[:-1] + " "
+            buf += line[:-1].rstrip() + " "
             continue
         buf += line
         keyword, _, args = buf.partition(" ")
@@ -190,6 +190,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.service
 def test_health_check_passes_for_a_tokened_api_and_fails_when_it_is_down(tmp_path):
     """The HEALTHCHECK command against a real `api` role (API only, no cluster) started with a token."""
     port = _free_port()
