@@ -338,29 +338,45 @@ def _check_table(name: str, a, ncols: int) -> np.ndarray:
     return a
 
 
-def _write_frames(root: Path, mode: str, frames: Iterable[np.ndarray], n: int, cam: dict) -> None:
+def _write_frames(root: Path, modes: list[str], frames: list[Iterable[np.ndarray]], n: int, cams: dict) -> None:
+    """Write the frames of every mode in lockstep (frame i of each mode, then frame i + 1...)."""
     import cv2
 
-    (root / mode).mkdir()
-    w, h = int(cam["model"]["width"]), int(cam["model"]["height"])
-    bits = int(cam["bit_depth"])
+    for m in modes:
+        (root / m).mkdir()
+    iters = [iter(f) for f in frames]
     count = 0
-    for i, img in enumerate(frames):
-        img = np.asarray(img)
-        if i >= n:
-            raise InvalidInputError(f"more {mode} frames than the {n} frame times: give one image per frame")
-        if img.shape != (h, w):
-            raise InvalidInputError(f"{mode} frame {i} has shape {img.shape}; the camera is {w}x{h} grey")
-        want = np.uint8 if bits <= 8 else np.uint16
-        if img.dtype != want:
-            raise InvalidInputError(f"{mode} frame {i} is {img.dtype}; a {bits}-bit camera stores {np.dtype(want)}")
-        if bits < 16 and bits != 8 and int(img.max(initial=0)) >= 2 ** bits:
-            raise InvalidInputError(f"{mode} frame {i} holds counts above {2 ** bits - 1} ({bits}-bit camera)")
-        if not cv2.imwrite(str(root / frame_name(mode, i)), img, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-            raise FormatError(f"could not write {root / frame_name(mode, i)}")
+    while True:
+        imgs = []
+        for m, it in zip(modes, iters):
+            try:
+                imgs.append(next(it))
+            except StopIteration:
+                imgs.append(None)
+        if all(img is None for img in imgs):
+            break
+        i = count
+        for m, img in zip(modes, imgs):
+            if img is None:
+                raise InvalidInputError(f"{i} {m} frames for {n} frame times: give one image per frame")
+            if i >= n:
+                raise InvalidInputError(f"more {m} frames than the {n} frame times: give one image per frame")
+            cam = cams[m]
+            w, h = int(cam["model"]["width"]), int(cam["model"]["height"])
+            bits = int(cam["bit_depth"])
+            img = np.asarray(img)
+            if img.shape != (h, w):
+                raise InvalidInputError(f"{m} frame {i} has shape {img.shape}; the camera is {w}x{h} grey")
+            want = np.uint8 if bits <= 8 else np.uint16
+            if img.dtype != want:
+                raise InvalidInputError(f"{m} frame {i} is {img.dtype}; a {bits}-bit camera stores {np.dtype(want)}")
+            if bits not in (8, 16) and int(img.max(initial=0)) >= 2 ** bits:
+                raise InvalidInputError(f"{m} frame {i} holds counts above {2 ** bits - 1} ({bits}-bit camera)")
+            if not cv2.imwrite(str(root / frame_name(m, i)), img, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+                raise FormatError(f"could not write {root / frame_name(m, i)}")
         count += 1
     if count != n:
-        raise InvalidInputError(f"{count} {mode} frames for {n} frame times: give one image per frame")
+        raise InvalidInputError(f"{count} {modes[0]} frames for {n} frame times: give one image per frame")
 
 
 def write_sequence(folder: str | os.PathLike, meta: dict, visible_frames: Iterable[np.ndarray] | None,
@@ -373,7 +389,8 @@ def write_sequence(folder: str | os.PathLike, meta: dict, visible_frames: Iterab
         the frames written are those of the cameras whose frames are given (a camera without frames
         is dropped from ``cameras``).
     visible_frames, thermal_frames : iterables (lists or generators) of (H, W) uint8/uint16 images,
-        one per frame time, or None.
+        one per frame time, or None; both are consumed in lockstep (frame i of each, then i + 1),
+        so two generators fed by one renderer (``itertools.tee``) hold at most one frame.
     imu : (n, 7) t, gyro (rad/s), accel (m/s2); altimeter : (n, 3) t, range (m), valid;
     groundtruth : (n, 8) TUM rows.  frame_times : (n_frames,) s, or None to take ``meta["frames"]``'s.
     overwrite : replace an existing folder (otherwise InvalidInputError).
@@ -418,8 +435,7 @@ def write_sequence(folder: str | os.PathLike, meta: dict, visible_frames: Iterab
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".part", dir=root.parent))
     try:
-        for m in modes:
-            _write_frames(tmp, m, given[m], times.size, doc["cameras"][m])
+        _write_frames(tmp, modes, [given[m] for m in modes], times.size, doc["cameras"])
         np.savetxt(tmp / IMU_FILE, imu, delimiter=",", header=IMU_HEADER, comments="", fmt="%.9g")
         alt = altimeter.copy()
         np.savetxt(tmp / ALTIMETER_FILE, alt, delimiter=",", header=ALTIMETER_HEADER, comments="",
