@@ -15,14 +15,26 @@ log = logging.getLogger(__name__)
 @click.option("--port", default=8000, show_default=True, type=click.IntRange(0, 65535))
 @click.option("--data", "data_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the job store, DEMs, jobs and results (created if missing).")
-@click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default a LocalCluster.")
+@click.option("--scheduler", default=None,
+              help="Dask scheduler address (tls://host:8786) instead of a LocalCluster; its credentials come from "
+                   "--tls-ca-file/--tls-cert/--tls-key or Dask's security config (distributed.comm.tls.*). "
+                   "The default LocalCluster uses mutual TLS with credentials generated in DATA/.dask-tls.")
+@click.option("--tls-ca-file", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="CA certificate (PEM) of the --scheduler's cluster.")
+@click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="This server's client certificate (PEM) for the --scheduler.")
+@click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="The key of --tls-cert (PEM), unless appended to it.")
+@click.option("--dashboard", default=None, metavar="127.0.0.1:PORT",
+              help="Serve the LocalCluster's Dask dashboard on this loopback address (none by default).")
 @click.option("--workers", "n_workers", default=None, type=click.IntRange(1, 256),
               help="LocalCluster worker processes (one thread each).  [default: 2]")
 @click.option("--token-file", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="File whose first line is the bearer token (else SKYLOC_TOKEN).")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["critical", "error", "warning", "info", "debug"]))
-def serve(host: str, port: int, data_dir: Path, scheduler: str | None, n_workers: int | None,
+def serve(host: str, port: int, data_dir: Path, scheduler: str | None, tls_ca_file: Path | None,
+          tls_cert: Path | None, tls_key: Path | None, dashboard: str | None, n_workers: int | None,
           token_file: Path | None, log_level: str) -> None:
     """Run the render service: REST queue for skyline databases on Dask (API docs at /docs)."""
     import uvicorn  # noqa: PLC0415
@@ -30,7 +42,13 @@ def serve(host: str, port: int, data_dir: Path, scheduler: str | None, n_workers
     from render_service.main import create_app  # noqa: PLC0415
     from render_service.settings import ServiceSettings  # noqa: PLC0415
 
-    overrides = {"host": host, "port": port, "data_dir": data_dir, "scheduler": scheduler, "token_file": token_file}
+    if (tls_ca_file or tls_cert or tls_key) and not scheduler:
+        raise click.BadParameter("--tls-ca-file/--tls-cert/--tls-key are for a --scheduler: the LocalCluster "
+                                 "generates its own credentials", param_hint="--tls-cert")
+    if tls_ca_file and not tls_cert:
+        raise click.BadParameter("give --tls-cert (and --tls-key) with --tls-ca-file", param_hint="--tls-cert")
+    overrides = {"host": host, "port": port, "data_dir": data_dir, "scheduler": scheduler, "token_file": token_file,
+                 "tls_ca_file": tls_ca_file, "tls_cert": tls_cert, "tls_key": tls_key, "dashboard": dashboard}
     if n_workers is not None:
         overrides["n_workers"] = n_workers
     settings = ServiceSettings(**{k: v for k, v in overrides.items() if v is not None})

@@ -7,19 +7,24 @@ Errors are JSON ``{"detail": reason, "code": machine_code}``: SkylocError subcla
 from __future__ import annotations
 
 import logging
+import sqlite3
 from contextlib import asynccontextmanager
 
-from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from board.errors import DemReadError, FormatError, InvalidInputError, JobNotFoundError, SkylocError
 from render_service import __version__
 from render_service.api.deps import require_token
+from render_service.api.docs import install_local_docs
 from render_service.api.routes import dems, health, jobs, ui
-from render_service.security import TokenAuth, check_startup, load_token
+from render_service.schemas import ErrorOut
+from render_service.security import TokenAuth, TokenGateMiddleware, check_startup, load_token
 from render_service.settings import ServiceSettings
+from render_service.storage import DataDirLock, StorageMonitor, check_data_dir, is_storage_error, storage_reason
 from render_service.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -28,7 +33,15 @@ log = logging.getLogger(__name__)
 MAX_JSON_BYTES = 1 << 20
 _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed",
                409: "conflict", 410: "gone", 413: "too_large", 415: "unsupported_media_type",
-               416: "range_not_satisfiable", 422: "invalid_input", 501: "not_available"}
+               416: "range_not_satisfiable", 422: "invalid_input", 501: "not_available", 503: "storage_unavailable"}
+#: Answers every route can give (documented in the OpenAPI schema of each operation).
+_COMMON_RESPONSES = {
+    400: {"model": ErrorOut, "description": "Malformed request (unparsable multipart body)"},
+    404: {"model": ErrorOut, "description": "No such route or resource"},
+    405: {"model": ErrorOut, "description": "Method not allowed on this route"},
+    413: {"model": ErrorOut, "description": "Request body too large"},
+    503: {"model": ErrorOut, "description": "The server's data directory does not take writes (full, read-only)"},
+}
 
 
 def status_for(exc: SkylocError) -> int:
@@ -51,10 +64,11 @@ class BodyLimitMiddleware:
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        limit = self.upload_limit + 64 * 1024 if scope["path"].rstrip("/") == "/v1/dems" else self.json_limit
+        upload = scope["path"].rstrip("/") == "/v1/dems"
+        limit = self.upload_limit + 64 * 1024 if upload else self.json_limit
         declared = dict(scope.get("headers") or []).get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > limit:
-            return await _too_large(send, limit)
+            return await _too_large(send, limit, upload=upload)
         seen = 0
         exceeded = False
         replaced = False
@@ -74,7 +88,7 @@ class BodyLimitMiddleware:
             if exceeded:  # whatever the app answers after the overflow, the client gets 413
                 if not replaced:
                     replaced = True
-                    await _too_large(send, limit)
+                    await _too_large(send, limit, upload=upload)
                 return
             await send(message)
 
@@ -82,18 +96,29 @@ class BodyLimitMiddleware:
             await self.app(scope, limited_receive, guarded_send)
         except _BodyTooLarge:
             if not replaced:
-                await _too_large(send, limit)
+                await _too_large(send, limit, upload=upload)
 
 
 class _BodyTooLarge(Exception):
     """Raised inside receive() when a streamed body exceeds the limit."""
 
 
-async def _too_large(send, limit: int) -> None:
-    body = JSONResponse({"detail": f"request body larger than {limit} bytes: upload a smaller file "
-                                   "(see the server's max_upload_bytes)", "code": "too_large"}, status_code=413)
+async def _too_large(send, limit: int, *, upload: bool) -> None:
+    if upload:
+        text = f"request body larger than {limit} bytes: upload a smaller file (see the server's max_upload_bytes)"
+    else:
+        text = (f"request body larger than {limit} bytes: JSON requests are limited to {limit // 1024} KiB; "
+                "send a smaller request")
+    body = JSONResponse({"detail": text, "code": "too_large"}, status_code=413)
     await send({"type": "http.response.start", "status": 413, "headers": body.raw_headers})
     await send({"type": "http.response.body", "body": body.body})
+
+
+def error_text(exc: BaseException) -> str:
+    """The message of an exception (a KeyError's own text, not its repr in quotes)."""
+    if isinstance(exc, KeyError) and exc.args:
+        return str(exc.args[0])
+    return str(exc)
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -102,17 +127,28 @@ def _install_error_handlers(app: FastAPI) -> None:
         status = status_for(exc)
         if status >= 500:
             log.error("%s %s failed: %s", request.method, request.url.path, exc)
-        return JSONResponse({"detail": str(exc), "code": exc.code}, status_code=status)
+        return JSONResponse({"detail": error_text(exc), "code": exc.code}, status_code=status)
 
-    @app.exception_handler(HTTPException)
-    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+    @app.exception_handler(StarletteHTTPException)  # FastAPI's HTTPException and routing's 404 / 405 / 400
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         return JSONResponse({"detail": exc.detail, "code": _HTTP_CODES.get(exc.status_code, f"http_{exc.status_code}")},
-                            status_code=exc.status_code, headers=exc.headers)
+                            status_code=exc.status_code, headers=getattr(exc, "headers", None))
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = [{k: v for k, v in e.items() if k in ("loc", "msg", "type")} for e in exc.errors()]
         return JSONResponse({"detail": jsonable_encoder(errors), "code": "validation_error"}, status_code=422)
+
+    async def storage_error(request: Request, exc: Exception) -> JSONResponse:
+        if not is_storage_error(exc):
+            return await internal_error(request, exc)
+        log.error("%s %s: the data directory does not take writes: %s", request.method, request.url.path, exc)
+        app.state.monitor.problem(force=True)
+        return JSONResponse({"detail": storage_reason(exc).replace("submit the job again", "try again"),
+                             "code": "storage_unavailable"}, status_code=503, headers={"Retry-After": "30"})
+
+    app.add_exception_handler(OSError, storage_error)
+    app.add_exception_handler(sqlite3.Error, storage_error)
 
     @app.exception_handler(Exception)
     async def internal_error(request: Request, exc: Exception) -> JSONResponse:
@@ -121,51 +157,76 @@ def _install_error_handlers(app: FastAPI) -> None:
                             status_code=500)
 
 
-def create_app(settings: ServiceSettings | None = None) -> FastAPI:
-    """Build the app for ``settings``: checks the token rule, opens the store, starts Dask on startup.
+def _limit_gdal_cache(nbytes: int) -> None:
+    """Bound GDAL's block cache in this (API) process: DEM validation then reads in bounded memory."""
+    try:
+        from osgeo import gdal  # noqa: PLC0415
+    except ImportError:  # GDAL is checked when a DEM is uploaded
+        return
+    gdal.SetCacheMax(int(nbytes))
 
-    Raises InvalidInputError when a non-loopback host has no token or the token file is unusable.
+
+def create_app(settings: ServiceSettings | None = None) -> FastAPI:
+    """Build the app for ``settings``: checks the token rule and the data directory, takes its lock,
+    opens the store, starts the job runner (and Dask) on startup.
+
+    Raises InvalidInputError when a non-loopback host has no token, the token file is unusable, the
+    data directory cannot be written, or another server holds it.
     """
     settings = settings or ServiceSettings()
     token = load_token(settings)
     check_startup(settings, token)
-    for d in (settings.data_dir, settings.dems_dir, settings.jobs_dir):
-        d.mkdir(parents=True, exist_ok=True)
-    store = JobStore(settings.store_path)
+    check_data_dir(settings.data_dir)
+    lock = DataDirLock(settings.data_dir)
+    try:
+        store = JobStore(settings.store_path)
+    except BaseException:
+        lock.release()
+        raise
+    monitor = StorageMonitor(settings.data_dir, min_free_bytes=settings.min_free_bytes)
+    _limit_gdal_cache(settings.gdal_cache_bytes)
     runner = None
     if settings.start_cluster:
-        from render_service.tiling import JobRunner  # noqa: PLC0415
+        from render_service.runner import JobRunner  # noqa: PLC0415
 
-        runner = JobRunner(store=store, settings=settings)
+        runner = JobRunner(store=store, settings=settings, monitor=monitor)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         if runner is not None:
             runner.start()
-        yield
-        if runner is not None:
-            runner.stop()
-        store.close()
+        try:
+            yield
+        finally:
+            if runner is not None:
+                runner.stop()
+            store.close()
+            lock.release()
 
     app = FastAPI(title="skyloc render service", version=__version__, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, responses=_COMMON_RESPONSES,
                   description="REST queue for skyline databases and simulator test sets, rendered on Dask. "
                               "Authenticate with `Authorization: Bearer <token>`.")
     app.state.settings = settings
     app.state.store = store
     app.state.runner = runner
+    app.state.monitor = monitor
+    app.state.lock = lock
     app.state.auth = TokenAuth(token)
     auth = [Depends(require_token)]
+    install_local_docs(app)
     app.include_router(health.router)
     app.include_router(dems.router, dependencies=auth)
     app.include_router(jobs.router, dependencies=auth)
     app.include_router(ui.router, dependencies=auth)
     _install_error_handlers(app)
-    if settings.cors_origins:
+    app.add_middleware(BodyLimitMiddleware, upload_limit=settings.max_upload_bytes)
+    app.add_middleware(TokenGateMiddleware, auth=app.state.auth)  # outside the body limit: no body read at all
+    if settings.cors_origins:  # outermost: preflight requests carry no token
         from fastapi.middleware.cors import CORSMiddleware  # noqa: PLC0415
 
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type", "Idempotency-Key"])
-    app.add_middleware(BodyLimitMiddleware, upload_limit=settings.max_upload_bytes)
     log.info("render service: data in %s, %s", settings.data_dir,
              "token required" if app.state.auth.enabled else "no token (loopback only)")
     return app

@@ -7,9 +7,12 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, Strict
 
 _ID = r"^[0-9a-f]{8,64}$"
+#: JSON numbers only: a string ("100") or a boolean (true) is refused, not converted.
+Num = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
 
 
 class _In(BaseModel):
@@ -21,15 +24,15 @@ class SkylineDbJobIn(_In):
 
     kind: Literal["skyline_db"] = Field(description="Job kind")
     dem_id: str = Field(pattern=_ID, description="Id returned by POST /v1/dems")
-    center: tuple[float, float] = Field(description="Grid centre [x, y], metres, in the DEM's metric working CRS")
-    size_m: float = Field(gt=0, le=1e6, description="Side of the square grid, metres")
-    step_m: float = Field(gt=0, le=1e5, description="Grid spacing, metres")
-    camera_height_m: float = Field(2.0, ge=0, le=1e4, description="Eye height above the ground, metres")
-    azimuths: int = Field(360, ge=1, le=36000, description="Azimuth samples per skyline (360: one degree)")
-    azimuth_start_deg: float = Field(0.0, ge=0, lt=360, description="Azimuth of sample 0, degrees from grid north")
-    refraction_k: float = Field(0.0, ge=0, lt=1, description="Refraction coefficient (0 on airless bodies)")
+    center: tuple[Num, Num] = Field(description="Grid centre [x, y], metres, in the DEM's metric working CRS")
+    size_m: Num = Field(gt=0, le=1e6, description="Side of the square grid, metres")
+    step_m: Num = Field(gt=0, le=1e5, description="Grid spacing, metres")
+    camera_height_m: Num = Field(2.0, ge=0, le=1e4, description="Eye height above the ground, metres")
+    azimuths: Int = Field(360, ge=1, le=36000, description="Azimuth samples per skyline (360: one degree)")
+    azimuth_start_deg: Num = Field(0.0, ge=0, lt=360, description="Azimuth of sample 0, degrees from grid north")
+    refraction_k: Num = Field(0.0, ge=0, lt=1, description="Refraction coefficient (0 on airless bodies)")
     renderer: Literal["raymarch", "blender"] = Field("raymarch", description="Renderer of every tile")
-    tile_size: int = Field(64, ge=2, le=512, description="Tile side in positions (the unit of work and resumption)")
+    tile_size: Int = Field(64, ge=2, le=512, description="Tile side in positions (the unit of work and resumption)")
 
 
 class DatasetJobIn(_In):
@@ -38,7 +41,7 @@ class DatasetJobIn(_In):
     kind: Literal["dataset"] = Field(description="Job kind")
     scene: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$",
                        description="Scene name: scenes/<name>.toml on the server (no paths)")
-    seed: int | None = Field(None, ge=0, le=2**31 - 1, description="Override the scene's seed")
+    seed: Int | None = Field(None, ge=0, le=2**31 - 1, description="Override the scene's seed")
 
 
 JobIn = Annotated[Union[SkylineDbJobIn, DatasetJobIn], Field(discriminator="kind")]
@@ -95,7 +98,8 @@ class JobListOut(BaseModel):
 
 
 class HealthOut(BaseModel):
-    """Liveness: ``degraded`` (with ``detail``) when the Dask cluster could not be started or reached."""
+    """Liveness: ``degraded`` (with ``detail``) when the Dask cluster could not be started or reached, the job
+    runner stopped, or the data directory is not writable or short of space (jobs then wait)."""
 
     status: Literal["ok", "degraded"]
     version: str

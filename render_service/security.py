@@ -10,6 +10,7 @@ import base64
 import binascii
 import hmac
 import ipaddress
+import json
 import logging
 from pathlib import Path
 
@@ -70,8 +71,7 @@ def check_startup(settings: ServiceSettings, token: str | None) -> None:
         log.warning("no token configured: the API is open to every local user of this machine")
 
 
-def _presented_token(request: Request) -> str | None:
-    header = request.headers.get("authorization", "")
+def _token_from_header(header: str) -> str | None:
     scheme, _, value = header.partition(" ")
     scheme = scheme.lower()
     if scheme == "bearer":
@@ -85,6 +85,15 @@ def _presented_token(request: Request) -> str | None:
     return None
 
 
+def _presented_token(request: Request) -> str | None:
+    return _token_from_header(request.headers.get("authorization", ""))
+
+
+#: Paths served without a token: liveness, the API schema and its documentation pages and their assets.
+PUBLIC_PATHS = frozenset({"/healthz", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc"})
+PUBLIC_PREFIXES = ("/docs-assets/",)
+
+
 class TokenAuth:
     """FastAPI dependency: 401 unless the request carries the token (Bearer, or Basic password)."""
 
@@ -95,12 +104,53 @@ class TokenAuth:
     def enabled(self) -> bool:
         return self._token is not None
 
-    def __call__(self, request: Request) -> None:
+    def refusal(self, authorization: str, path: str) -> tuple[str, dict[str, str]] | None:
+        """None when ``authorization`` (the header's value) carries the token, else (reason, headers)."""
         if self._token is None:
-            return
-        given = _presented_token(request)
-        challenge = {"WWW-Authenticate": PAGE_CHALLENGE if request.url.path == "/" else API_CHALLENGE}
+            return None
+        given = _token_from_header(authorization)
+        challenge = {"WWW-Authenticate": PAGE_CHALLENGE if path == "/" else API_CHALLENGE}
         if given is None:
-            raise HTTPException(401, "missing credentials: send 'Authorization: Bearer <token>'", headers=challenge)
+            return "missing credentials: send 'Authorization: Bearer <token>'", challenge
         if not hmac.compare_digest(given.encode("utf-8"), self._token):
-            raise HTTPException(401, "invalid token: send the token the server was started with", headers=challenge)
+            return "invalid token: send the token the server was started with", challenge
+        return None
+
+    def __call__(self, request: Request) -> None:
+        refused = self.refusal(request.headers.get("authorization", ""), request.url.path)
+        if refused is not None:
+            raise HTTPException(401, refused[0], headers=refused[1])
+
+
+class TokenGateMiddleware:
+    """Pure ASGI middleware: the token is checked on the request's headers, before any body is received.
+
+    A request without the token gets its 401 at once and its body is never read (the server closes the
+    connection rather than drain it), so an unauthenticated upload writes nothing anywhere.  The
+    public paths (:data:`PUBLIC_PATHS`) pass; the route dependency (:class:`TokenAuth`) checks again.
+    """
+
+    def __init__(self, app, *, auth: TokenAuth) -> None:
+        self.app = app
+        self.auth = auth
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or not self.auth.enabled:
+            return await self.app(scope, receive, send)
+        path = scope.get("path", "")
+        if path in PUBLIC_PATHS or path.startswith(PUBLIC_PREFIXES):
+            return await self.app(scope, receive, send)
+        header = b""
+        for k, v in scope.get("headers") or ():
+            if k == b"authorization":
+                header = v
+                break
+        refused = self.auth.refusal(header.decode("latin-1"), path)
+        if refused is None:
+            return await self.app(scope, receive, send)
+        body = json.dumps({"detail": refused[0], "code": "unauthorized"}).encode()
+        headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                   (b"connection", b"close")]
+        headers += [(k.lower().encode(), v.encode()) for k, v in refused[1].items()]
+        await send({"type": "http.response.start", "status": 401, "headers": headers})
+        await send({"type": "http.response.body", "body": body})

@@ -24,7 +24,13 @@ class ServiceSettings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     token: SecretStr | None = Field(None, description="Bearer token (SKYLOC_TOKEN); never logged")
     token_file: Path | None = Field(None, description="File whose first line is the bearer token")
-    scheduler: str | None = Field(None, description="Dask scheduler address (tcp://host:8786); None: LocalCluster")
+    scheduler: str | None = Field(None, description="Dask scheduler address (tls://host:8786); None: a TLS "
+                                                    "LocalCluster with credentials generated in DATA/.dask-tls")
+    tls_ca_file: Path | None = Field(None, description="CA certificate (PEM) of the --scheduler's cluster")
+    tls_cert: Path | None = Field(None, description="Client certificate (PEM) for the --scheduler")
+    tls_key: Path | None = Field(None, description="Client key (PEM) for the --scheduler (else in tls_cert)")
+    dashboard: str | None = Field(None, description="Serve the LocalCluster's Dask dashboard on this loopback "
+                                                    "host:port (none by default)")
     n_workers: int = Field(2, ge=1, le=256, description="LocalCluster worker processes")
     threads_per_worker: int = Field(1, ge=1, le=64, description="Threads per worker (1: Blender tiles need it)")
     max_upload_bytes: int = Field(512 * 1024**2, ge=1, description="Largest accepted DEM upload, bytes")
@@ -34,6 +40,10 @@ class ServiceSettings(BaseSettings):
     max_area_km2: float = Field(100.0, gt=0, description="Largest search area of one job, km^2")
     max_tile_retries: int = Field(2, ge=0, le=20, description="Retries of a failed tile before the job fails")
     max_in_flight_per_worker: int = Field(2, ge=1, le=64, description="Tiles queued on Dask per worker")
+    min_free_bytes: int = Field(64 * 1024**2, ge=0, description="Free space the data directory needs for jobs "
+                                                                "to start, bytes (less: /healthz degraded)")
+    gdal_cache_bytes: int = Field(64 * 1024**2, ge=1024**2, description="GDAL block cache of the API process, "
+                                                                        "bytes (bounds DEM validation memory)")
     cors_origins: list[str] = Field(default_factory=list, description="Allowed CORS origins (none by default)")
     scenes_dir: Path = Field(Path(__file__).resolve().parents[1] / "scenes",
                              description="Folder of the scene definitions dataset jobs may name")

@@ -5,8 +5,9 @@ the same store at once (the API process and the Dask workers on this machine): e
 has its own connection, writes are short transactions, readers never block writers (WAL).
 
 Tables
-    dems          uploaded DEMs by content hash
+    dems          uploaded DEMs by content hash and body (the same file for another body is another DEM)
     jobs          one row per job; ``spec`` is the canonical JSON of the request
+    idem_keys     Idempotency-Key -> job (every key ever sent with a job, new or already known)
     tiles         one row per (job, tile): state ``pending`` or ``done``, attempts, last error
     tile_renders  one row per *completed* tile render (the audit log that proves no tile is
                   rendered twice); ``recovered`` tiles found done in the database after a crash
@@ -14,6 +15,7 @@ Tables
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -34,8 +36,11 @@ ACTIVE_STATES = ("queued", "running", "cancel-requested")
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS dems (
-    id TEXT PRIMARY KEY, sha256 TEXT NOT NULL UNIQUE, filename TEXT NOT NULL, path TEXT NOT NULL,
+    id TEXT PRIMARY KEY, sha256 TEXT NOT NULL, filename TEXT NOT NULL, path TEXT NOT NULL,
     body TEXT, info TEXT NOT NULL, created REAL NOT NULL);
+CREATE INDEX IF NOT EXISTS dems_sha256 ON dems (sha256);
+CREATE TABLE IF NOT EXISTS idem_keys (
+    idem_key TEXT PRIMARY KEY, job_id TEXT NOT NULL, spec TEXT NOT NULL, created REAL NOT NULL);
 CREATE TABLE IF NOT EXISTS jobs (
     id TEXT PRIMARY KEY, kind TEXT NOT NULL, spec TEXT NOT NULL, idem_key TEXT UNIQUE,
     state TEXT NOT NULL, tiles_total INTEGER NOT NULL DEFAULT 0, positions_total INTEGER NOT NULL DEFAULT 0,
@@ -96,7 +101,9 @@ class JobStore:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
-        self._con().executescript(_SCHEMA)
+        con = self._con()
+        _migrate_dems(con)
+        con.executescript(_SCHEMA)
 
     # -- connections -------------------------------------------------------------------------
     def _con(self) -> sqlite3.Connection:
@@ -128,13 +135,22 @@ class JobStore:
             self._local.con = None
 
     # -- DEMs ----------------------------------------------------------------------------------
-    def add_dem(self, *, dem_id: str, sha256: str, filename: str, path: str, body: str | None,
+    def add_dem(self, *, sha256: str, filename: str, path: str, body: str | None,
                 info: dict) -> tuple[DemRecord, bool]:
-        """Insert a DEM (by content hash); returns (record, created). Same hash: the existing record."""
+        """Insert a DEM; returns (record, created).
+
+        The same file for the same body (``info["body"]``) is the existing record.  The same file for
+        another body is a new DEM: its id is ``sha256[:16]`` when no body was asked for, else a hash of
+        the content and the body.
+        """
+        key = _body_key(info)
+        dem_id = sha256[:16] if body is None else hashlib.sha256(f"{sha256}|{key}".encode()).hexdigest()[:16]
         with self._tx() as con:
-            row = con.execute("SELECT * FROM dems WHERE sha256 = ?", (sha256,)).fetchone()
-            if row is not None:
-                return _dem(row), False
+            for row in con.execute("SELECT * FROM dems WHERE sha256 = ?", (sha256,)).fetchall():
+                if _body_key(json.loads(row["info"])) == key:
+                    return _dem(row), False
+            if con.execute("SELECT 1 FROM dems WHERE id = ?", (dem_id,)).fetchone() is not None:
+                dem_id = hashlib.sha256(f"{sha256}|{key}".encode()).hexdigest()[:16]
             con.execute("INSERT INTO dems (id, sha256, filename, path, body, info, created) VALUES (?,?,?,?,?,?,?)",
                         (dem_id, sha256, filename, path, body, json.dumps(info), time.time()))
         return self.get_dem(dem_id=dem_id), True
@@ -162,12 +178,19 @@ class JobStore:
         now = time.time()
         with self._tx() as con:
             if idem_key is not None:
-                row = con.execute("SELECT id, spec FROM jobs WHERE idem_key = ?", (idem_key,)).fetchone()
+                row = con.execute("SELECT job_id AS id, spec FROM idem_keys WHERE idem_key = ?", (idem_key,)).fetchone()
+                if row is None:  # stores written before the idem_keys table
+                    row = con.execute("SELECT id, spec FROM jobs WHERE idem_key = ?", (idem_key,)).fetchone()
                 if row is not None and row["spec"] != spec_json:
                     raise InvalidInputError("this Idempotency-Key was used for a different job spec: "
                                             "use a new key for a new job")
                 if row is not None:
                     job_id = row["id"]
+                else:  # recorded whether the job is new or already known under another key
+                    con.execute("INSERT INTO idem_keys (idem_key, job_id, spec, created) VALUES (?,?,?,?)",
+                                (idem_key, job_id, spec_json, now))
+                    if con.execute("SELECT 1 FROM jobs WHERE id = ?", (job_id,)).fetchone() is not None:
+                        idem_key = None  # the job row keeps its first key; this one lives in idem_keys
             row = con.execute("SELECT state FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is not None:
                 if row["state"] in ("failed", "cancelled"):
@@ -301,6 +324,30 @@ def _job(row: sqlite3.Row) -> JobRecord:
         error=row["error"], created=row["created"], started=row["started"], finished=row["finished"],
         run_started=row["run_started"], result_path=row["result_path"], result_sha256=row["result_sha256"],
         result_bytes=row["result_bytes"], idem_key=row["idem_key"])
+
+
+def _body_key(info: dict) -> str:
+    body = info.get("body") or {}
+    return f"{body.get('name')}:{float(body.get('radius_m') or 0.0)!r}"
+
+
+def _migrate_dems(con: sqlite3.Connection) -> None:
+    """Stores made before DEMs were keyed by body had ``sha256 UNIQUE``: rebuild that table without it."""
+    row = con.execute("SELECT sql FROM sqlite_master WHERE type='table' AND name='dems'").fetchone()
+    if row is None or "UNIQUE" not in row[0].upper():
+        return
+    con.execute("BEGIN IMMEDIATE")
+    try:
+        con.execute("ALTER TABLE dems RENAME TO dems_old")
+        con.execute("CREATE TABLE dems (id TEXT PRIMARY KEY, sha256 TEXT NOT NULL, filename TEXT NOT NULL, "
+                    "path TEXT NOT NULL, body TEXT, info TEXT NOT NULL, created REAL NOT NULL)")
+        con.execute("INSERT INTO dems SELECT id, sha256, filename, path, body, info, created FROM dems_old")
+        con.execute("DROP TABLE dems_old")
+    except BaseException:
+        con.execute("ROLLBACK")
+        raise
+    con.execute("COMMIT")
+    log.info("job store: DEM table migrated (one record per file and body)")
 
 
 def _dem(row: sqlite3.Row) -> DemRecord:

@@ -20,7 +20,7 @@ from render_service.uploads import _short, check_body, safe_filename, validate_d
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1/dems", tags=["dems"])
-_ERRORS = {401: {"model": ErrorOut}, 413: {"model": ErrorOut}, 422: {"model": ErrorOut}}
+_ERRORS = {401: {"model": ErrorOut}, 413: {"model": ErrorOut}, 422: {"model": ErrorOut}, 503: {"model": ErrorOut}}
 
 
 def dem_out(rec: DemRecord, *, created: bool = False) -> DemOut:
@@ -40,7 +40,7 @@ def _ingest(tmp: Path, sha: str, filename: str, body: str | None, settings: Serv
     except SkylocError as exc:
         raise type(exc)(_short(exc)) from None  # no server paths in the answer
     os.replace(tmp, final)
-    return store.add_dem(dem_id=sha[:16], sha256=sha, filename=filename, path=str(final), body=body, info=info)
+    return store.add_dem(sha256=sha, filename=filename, path=str(final), body=body, info=info)
 
 
 @router.post("", status_code=201, response_model=DemOut, responses=_ERRORS,

@@ -88,7 +88,7 @@ def _skyline_block(store: JobStore, settings: ServiceSettings) -> str:
 def status_page(store: JobStore = Depends(get_store), settings: ServiceSettings = Depends(get_settings),
                 runner=Depends(get_runner)) -> HTMLResponse:
     now = time.time()
-    jobs = [job_out(j, now=now) for j in store.list_jobs(limit=100)]
+    jobs = [job_out(j, now=now, runner=runner) for j in store.list_jobs(limit=100)]
     workers = runner.n_workers() if runner is not None else None
     page = _TEMPLATE.substitute(version=__version__, workers=workers if workers is not None else "&ndash;",
                                 n_jobs=len(jobs), job_rows="\n".join(_row(j) for j in jobs) or
