@@ -16,6 +16,7 @@
 #   BASE_IMAGE       base image                              [debian:bookworm-slim]
 #   BUILD_NICE       niceness of the build                   [15]
 #   DEBOOTSTRAP_MIRROR  mirror for the debootstrap base      [$APT_MIRROR, else http://deb.debian.org/debian]
+#   IMAGE_CONTEXT    "." (the working tree) or "git" (the committed HEAD only, as a clean clone has it)  [.]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -102,17 +103,25 @@ EOF
   say "base image $LOCAL_BASE made by debootstrap"
 }
 
+CONTEXT=.
+if [ "${IMAGE_CONTEXT:-.}" = git ]; then
+  CONTEXT=$WORK/context
+  rm -rf "$CONTEXT"; mkdir -p "$CONTEXT"
+  git archive --format=tar HEAD | tar -C "$CONTEXT" -xf -
+  say "context: git HEAD $(git rev-parse --short HEAD) (uncommitted changes left out)"
+fi
+
 engine=$(pick_engine)
 say "engine: $engine, image: $IMAGE"
 t0=$(date +%s)
 case "$engine" in
   docker)
     DOCKER_BUILDKIT=1 nice -n "$NICE" docker build -t "$IMAGE" --build-arg "BASE_IMAGE=$BASE_IMAGE" \
-      "${build_args[@]}" "${secret_args[@]}" .
+      "${build_args[@]}" "${secret_args[@]}" "$CONTEXT"
     ;;
   podman)
     nice -n "$NICE" podman build --format docker -t "$IMAGE" --build-arg "BASE_IMAGE=$BASE_IMAGE" \
-      "${build_args[@]}" "${secret_args[@]}" .
+      "${build_args[@]}" "${secret_args[@]}" "$CONTEXT"
     ;;
   buildah)
     base=$BASE_IMAGE
@@ -130,7 +139,7 @@ case "$engine" in
     fi
     # --format docker keeps HEALTHCHECK (the OCI image format has no field for it)
     nice -n "$NICE" buildah bud --isolation chroot --format docker --layers --pull-never -t "$IMAGE" \
-      --build-arg "BASE_IMAGE=$base" "${build_args[@]}" "${secret_args[@]}" .
+      --build-arg "BASE_IMAGE=$base" "${build_args[@]}" "${secret_args[@]}" "$CONTEXT"
     ;;
 esac
 t1=$(date +%s)
