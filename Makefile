@@ -6,6 +6,7 @@ export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
 .PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
+	detector-labels bench-detector \
 	image image-smoke multinode-smoke
 
 install:
@@ -30,6 +31,15 @@ bench-match: install
 
 bench-extract: install
 	$(PY) -m benchmarks.bench_extract
+
+# issue 11: rendered panoramas + ray-marched truth (cached in /tmp/labels), tuned/validated split by DEM
+detector-labels: install
+	nice -n 10 $(PY) -m benchmarks.detector_labels --split tune --per-dem 4
+	nice -n 10 $(PY) -m benchmarks.detector_labels --split validate --per-dem 3
+
+bench-detector: install
+	nice -n 10 $(PY) -m benchmarks.bench_detector --split tune --per-dem 4 --no-speed
+	nice -n 10 $(PY) -m benchmarks.bench_detector --split validate --per-dem 3
 
 bench-blender: install
 	$(PY) -m benchmarks.bench_blender

@@ -1,0 +1,194 @@
+"""Skyline detection on rendered panoramas against the ray-marched truth, split by DEM (issue 11).
+
+Reads the labels of :mod:`benchmarks.detector_labels` (rendering the missing ones first) and, for
+each detector in the same run (``skyloc``: the extraction chain; ``baseline``: the reference
+report's graph, every column kept), prints per split and preset:
+
+* returned : share of panoramas with a skyline (status ok or degraded);
+* kept/seen : kept azimuth samples over the samples whose true horizon is in view;
+* median |err| : of the kept samples against the truth (degrees);
+* > 1 deg : share of kept samples more than 1 degree off (a wrong kept column is worse than a masked one);
+* p95 |err| and the worst case.
+
+Speed and memory of the detector on a 3600 x 1800 panorama (wall, CPU, peak RSS of a child
+process that only loads the image and extracts).
+
+``python -m benchmarks.bench_detector --split validate --per-dem 3`` (``make bench-detector``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from benchmarks.detector_labels import PRESETS, SPLITS, draw_cases, load_label, make_labels
+
+log = logging.getLogger(__name__)
+
+SKYLINE_N = 360
+ERR_BAD_DEG = 1.0
+
+
+@dataclass
+class Tally:
+    """Per (split, preset, detector) counts."""
+
+    n: int = 0
+    returned: int = 0
+    seen: int = 0
+    kept: int = 0
+    errors: list = field(default_factory=list)
+    worst: list = field(default_factory=list)
+
+    def row(self) -> dict:
+        e = np.concatenate(self.errors) if self.errors else np.zeros(0)
+        return {"n": self.n, "returned": self.returned / max(self.n, 1),
+                "kept_over_seen": self.kept / max(self.seen, 1),
+                "median_err_deg": float(np.median(e)) if e.size else float("nan"),
+                "p95_err_deg": float(np.percentile(e, 95)) if e.size else float("nan"),
+                "bad_share": float(np.mean(e > ERR_BAD_DEG)) if e.size else float("nan"),
+                "max_err_deg": float(e.max()) if e.size else float("nan")}
+
+
+def truth_on_grid(el_fine: np.ndarray, n: int = SKYLINE_N) -> np.ndarray:
+    """Truth (every 0.1 deg from the heading) at the skyline's ``n`` point samples."""
+    k = el_fine.size // n
+    return el_fine[::k][:n]
+
+
+def in_view(truth: np.ndarray, geom) -> np.ndarray:
+    """Samples whose true horizon lies inside the panorama's elevation band (1 px inside)."""
+    top = geom.elevation_row0_deg + 0.5 * geom.elevation_step_deg
+    bot = top - geom.height * geom.elevation_step_deg
+    return (truth < top - geom.elevation_step_deg) & (truth > bot + geom.elevation_step_deg)
+
+
+def run_skyloc(pano):
+    from board.extraction import extract_from_panorama
+
+    res = extract_from_panorama(pano)
+    if res.skyline is None:
+        return None, res.reason
+    return res.skyline.elevation_deg, res.status
+
+
+def run_baseline(pano):
+    from board.detect import detect_baseline
+    from board.extraction import panorama_line_to_skyline
+
+    rows = detect_baseline(pano.image, wrap=True).astype(float) - 0.5
+    sky = panorama_line_to_skyline(rows, pano.geometry, n_azimuth=SKYLINE_N)
+    return sky.elevation_deg, "ok"
+
+
+DETECTORS = {"skyloc": run_skyloc, "baseline": run_baseline}
+
+
+def evaluate(folders, detectors=DETECTORS, *, verbose: bool = False) -> dict:
+    from board.acquisition import load_panorama
+
+    out: dict = {}
+    for f in folders:
+        case, fine, _ = load_label(f)
+        pano = load_panorama(f / "pano")
+        truth = truth_on_grid(fine)
+        view = in_view(truth, pano.geometry)
+        for name, fn in detectors.items():
+            t = out.setdefault((case.split, case.preset, name), Tally())
+            t.n += 1
+            el, status = fn(pano)
+            t.seen += int(view.sum())
+            if el is None:
+                if verbose:
+                    log.info("%s %s %-9s %-8s refused: %s", case.key, case.dem_name, case.preset, name, status)
+                continue
+            t.returned += 1
+            kept = view & np.isfinite(el)
+            t.kept += int(kept.sum())
+            err = np.abs(el[kept] - truth[kept])
+            t.errors.append(err)
+            if verbose:
+                log.info("%s %-22s %-9s %-8s p%+.0f r%+.0f %-8s kept %.2f med %.3f bad %.4f max %.2f", case.key,
+                         case.dem_name, case.preset, name, case.pitch_deg, case.roll_deg, status,
+                         kept.sum() / max(view.sum(), 1), np.median(err) if err.size else np.nan,
+                         np.mean(err > ERR_BAD_DEG) if err.size else np.nan, err.max() if err.size else np.nan)
+    return out
+
+
+def print_table(res: dict) -> None:
+    print("| split | preset | detector | panoramas | returned | kept / seen | median abs err (deg) | "
+          "p95 (deg) | kept > 1 deg | worst (deg) |")
+    print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for (split, preset, name), t in sorted(res.items()):
+        r = t.row()
+        print(f"| {split} | {preset} | {name} | {r['n']} | {100 * r['returned']:.0f} % | "
+              f"{100 * r['kept_over_seen']:.1f} % | {r['median_err_deg']:.3f} | {r['p95_err_deg']:.2f} | "
+              f"{100 * r['bad_share']:.2f} % | {r['max_err_deg']:.1f} |")
+
+
+_SPEED_CHILD = r"""
+import resource, sys, time, json
+import numpy as np
+from board.acquisition import PanoramaGeometry, Panorama
+from board.synthetic import SkylineFunction, synth_panorama
+from board.extraction import extract_from_panorama
+g = PanoramaGeometry.full_circle(3600, 1800, elevation_top_deg=90.0, elevation_bottom_deg=-90.0)
+img = (np.clip(synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1), 0, 1) * 255 + .5).astype(np.uint8)
+img = np.repeat(img[..., None], 3, axis=2)
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+best = (1e9, 1e9)
+for _ in range(3):
+    t, c = time.perf_counter(), time.process_time()
+    r = extract_from_panorama(Panorama(img, g))
+    best = min(best, (time.perf_counter() - t, time.process_time() - c))
+print(json.dumps({"wall_s": best[0], "cpu_s": best[1], "status": r.status,
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "rss_before_mb": base / 1024}))
+"""
+
+
+def speed() -> dict:
+    """Detector speed and peak memory on a 3600 x 1800 colour panorama, in a fresh child process."""
+    p = subprocess.run([sys.executable, "-c", _SPEED_CHILD], capture_output=True, text=True, check=True,
+                       env=os.environ | {"OMP_NUM_THREADS": "2"})
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--split", default="tune,validate", help="comma-separated splits")
+    p.add_argument("--per-dem", type=int, default=3)
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--presets", default=",".join(PRESETS))
+    p.add_argument("--no-speed", action="store_true")
+    p.add_argument("-v", "--verbose", action="store_true")
+    a = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    for noisy in ("blender_addon", "board", "render_service"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+    folders = []
+    for split in a.split.split(","):
+        if split not in SPLITS:
+            raise SystemExit(f"unknown split {split!r}")
+        folders += make_labels(draw_cases(split, per_dem=a.per_dem, seed=a.seed,
+                                          presets=tuple(a.presets.split(","))))
+    print(f"# bench_detector: {len(folders)} labelled panoramas, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+          f"load {os.getloadavg()[0]:.2f}")
+    print_table(evaluate(folders, verbose=a.verbose))
+    if not a.no_speed:
+        s = speed()
+        print(f"\nspeed 3600 x 1800 colour panorama: wall {s['wall_s']:.2f} s, CPU {s['cpu_s']:.2f} s, "
+              f"peak RSS {s['peak_rss_mb']:.0f} MB (interpreter + numpy/OpenCV + image {s['rss_before_mb']:.0f} MB "
+              f"before extraction), status {s['status']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
