@@ -44,15 +44,24 @@ RUN --mount=type=secret,id=ca-bundle \
     python3.11 -m venv /opt/skyloc \
  && skyloc-with-ca /opt/skyloc/bin/pip install --upgrade pip wheel "setuptools>=67"
 WORKDIR /src
-COPY pyproject.toml README.md ./
+# Dependencies first, from pyproject.toml alone (this layer is reused while only the source changes),
+# with the GDAL bindings of the system library (3.6.2 on bookworm) built against it.
+COPY pyproject.toml ./
+RUN --mount=type=secret,id=ca-bundle \
+    /opt/skyloc/bin/python -c 'import sys, tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; \
+extras = [e for e in sys.argv[1].split(",") if e]; \
+print("\n".join(p["dependencies"] + [d for e in extras for d in p["optional-dependencies"][e]]))' \
+      "$SKYLOC_EXTRAS" >/tmp/requirements.txt \
+ && skyloc-with-ca /opt/skyloc/bin/pip install -r /tmp/requirements.txt \
+ && skyloc-with-ca /opt/skyloc/bin/pip install --no-build-isolation "GDAL==$(gdal-config --version)" \
+ && rm /tmp/requirements.txt
+COPY README.md ./
 COPY board ./board
 COPY blender_addon ./blender_addon
 COPY render_service ./render_service
 COPY skyloc ./skyloc
-# GDAL bindings must match the system library (3.6.2 on bookworm), built against it here.
-RUN --mount=type=secret,id=ca-bundle \
-    skyloc-with-ca /opt/skyloc/bin/pip install ".[${SKYLOC_EXTRAS}]" \
- && skyloc-with-ca /opt/skyloc/bin/pip install --no-build-isolation "GDAL==$(gdal-config --version)" \
+RUN /opt/skyloc/bin/pip install --no-deps --no-build-isolation . \
+ && /opt/skyloc/bin/pip check \
  && /opt/skyloc/bin/pip uninstall -y pip wheel setuptools
 
 # ---------------------------------------------------------------------------------------------
