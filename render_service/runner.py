@@ -21,6 +21,7 @@ API, and written as soon as the disk takes writes again; then the queue continue
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import shutil
@@ -129,7 +130,11 @@ class JobRunner:
             return self.error
         if self._thread.ident is not None and not self._thread.is_alive() and not self._stop.is_set():
             return "the job runner stopped: see the server log, then restart the server"
-        return self.monitor.problem()
+        problem = self.monitor.problem()
+        if problem is None and self.pending_failures:
+            problem = (f"the job store does not take writes: {len(self.pending_failures)} job failure(s) not "
+                       "recorded yet; new jobs wait")
+        return problem
 
     def _refresh_workers(self, *, force: bool = False) -> None:
         now = time.monotonic()
@@ -231,7 +236,7 @@ class JobRunner:
             raise _Stop
         problem = self.monitor.problem()
         if problem is not None:
-            raise StorageUnavailable(problem)
+            raise StorageUnavailable(errno.ENOSPC if "space" in problem else errno.EROFS, problem)
         if self.store.get_job(job_id=job_id).state == "cancel-requested":
             raise _Cancelled
 

@@ -117,7 +117,7 @@ def storage_reason(exc: BaseException) -> str:
     return NO_SPACE if is_no_space(exc) else READ_ONLY
 
 
-_ABS_PATH = re.compile(r"(?<![\w.:/])(/[\w.+@%=-]+){2,}/?")
+_ABS_PATH = re.compile(r"(?<![\w.:/>])(/[\w.+@%=-]+){2,}/?")
 
 
 def scrub_paths(text: str, data_dir: Path | None = None) -> str:
