@@ -22,6 +22,7 @@ PLUGIN_MODULES = (
     "blender_addon.cli_sim_acquire",  # skyloc sim acquire|dataset (adds to the sim group)
     "render_service.cli_db",      # skyloc db render|info|horizon
     "render_service.cli_serve",   # skyloc serve
+    "render_service.cli_campaign",  # skyloc campaign
     "board.cli_extract",          # skyloc extract
     "board.cli_locate",           # skyloc locate
 )

@@ -154,8 +154,9 @@ class Simulator:
         self._scene.build_terrain(self.terrain)
         self._scene.state.get_scene()["skyloc_simulator"] = self._token
 
-    def _ensure_scene(self) -> None:
-        """Rebuild the terrain if another Simulator (or anything else) reset the Blender session since."""
+    def ensure_scene(self) -> None:
+        """Rebuild the terrain if another Simulator (or anything else) reset the Blender session since
+        (call it before rendering into the current scene directly, e.g. with ``make_panorama(build=False)``)."""
         if self._scene.state.get_scene().get("skyloc_simulator") != self._token:
             log.info("simulator: the Blender scene was replaced; rebuilding the terrain")
             self._build()
@@ -183,7 +184,7 @@ class Simulator:
         from blender_addon.scene.pantilt import point_camera
 
         self._check_pose(job.pose)
-        self._ensure_scene()
+        self.ensure_scene()
         deg = job.degradation
         p = job.pose
         cam = job.camera.camera_model(**deg.lens.distortion)

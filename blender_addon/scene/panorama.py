@@ -71,13 +71,16 @@ def _eye_z(pose: PanoramaPose, terrain: MultiResTerrain | None) -> float:
     return sample_height(terrain, pose.x, pose.y) + pose.height_m
 
 
-def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset: str, *, width: int, seed: int,
+def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset, *, width: int, seed: int,
                    samples: int, path: Path) -> tuple[np.ndarray, dict]:
-    """Intensity panorama with H5b's dressing (regolith, rocks, sky, sun) and sensor noise."""
+    """Intensity panorama with H5b's dressing (regolith, rocks, sky, sun) and sensor noise.
+
+    preset : a preset name or a :class:`~blender_addon.core.degrade.Degradation`
+    """
     from blender_addon.core import degrade
     from blender_addon.scene import dressing
 
-    deg = degrade.get_degradation(preset)
+    deg = preset if isinstance(preset, degrade.Degradation) else degrade.get_degradation(preset)
     info = dressing.dress_scene(terrain, deg, center_xy=(pose.x, pose.y), heading_deg=pose.heading_deg,
                                 seed=seed, samples=samples)
     place_camera(pose.x, pose.y, _eye_z(pose, terrain), pose.heading_deg, pose.pitch_deg, pose.roll_deg)
@@ -90,7 +93,7 @@ def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset: str, *,
     lin = degrade.add_sensor_noise(lin, rng, full_well_e=deg.sensor.full_well_e, read_noise_e=deg.sensor.read_noise_e)
     img = degrade.quantise(degrade.srgb_encode(lin), deg.sensor.bit_depth)
     img = np.ascontiguousarray(img[..., ::-1])          # board.acquisition writes with OpenCV: BGR order
-    meta = {"preset": preset, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
+    meta = {"preset": deg.name, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
             "sun_azimuth_deg": info.sun_azimuth_deg, "sun_elevation_deg": info.sun_elevation_deg,
             "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
                     "not to this equirectangular product"}
@@ -98,12 +101,13 @@ def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset: str, *,
 
 
 def make_panorama(terrain: MultiResTerrain, pose: PanoramaPose, out_dir: str | os.PathLike, *, width: int = 2048,
-                  binary: bool = True, preset: str | None = None, seed: int = 0, samples: int = 16,
+                  binary: bool = True, preset=None, seed: int = 0, samples: int = 16,
                   dem: str = "", build: bool = True) -> Path:
     """Build the scene (unless ``build`` is False), render and write a panorama folder atomically.
 
     binary : the report's noise level 1 (terrain white, sky black); otherwise ``preset``
-        (clean | realistic | distorted, H5b's dressing) gives an intensity image.
+        (clean | realistic | distorted, H5b's dressing, or a ``Degradation`` such as a preset with
+        another sun) gives an intensity image.
     Returns the folder path.
     """
     out = Path(out_dir)
@@ -119,7 +123,7 @@ def make_panorama(terrain: MultiResTerrain, pose: PanoramaPose, out_dir: str | o
             img = render_binary_panorama(pose, width=width, path=tmp / "render.png", terrain=terrain)
             meta = {"preset": "binary", "renderer": "blender-cycles", "samples": 1}
         else:
-            img, meta = _dressed_image(terrain, pose, str(preset), width=width, seed=seed, samples=samples,
+            img, meta = _dressed_image(terrain, pose, preset, width=width, seed=seed, samples=samples,
                                        path=tmp / "render.png")
         (tmp / "render.png").unlink(missing_ok=True)
         z = sample_height(terrain, pose.x, pose.y) + pose.height_m

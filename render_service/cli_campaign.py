@@ -1,0 +1,64 @@
+"""``skyloc campaign``: the reference report's test campaign, end to end from rendered images, on any DEM."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+log = logging.getLogger(__name__)
+
+
+@click.command("campaign")
+@click.option("--dem", default="procedural:mars:7", show_default=True,
+              help="A DEM file skyloc reads, or procedural:PRESET:SEED (mars, moon, europa; sized by the profile).")
+@click.option("--profile", "profile_name", default="ci", show_default=True,
+              type=click.Choice(["ci", "report", "full"]),
+              help="ci: a small site in minutes; report: the report's protocol on 1 x 1 km at 5 m; full: "
+                   "+ robustness sets and 7 x 7 km (a cluster).")
+@click.option("--seed", default=0, show_default=True, type=int,
+              help="Draws the site, poses (off the grid), headings, tilts, suns and texture seeds.")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (results.csv, summary.json, report.html); run again to resume.")
+@click.option("--scheduler", default=None, help="Dask scheduler address; default a LocalCluster on this machine.")
+@click.option("--workers", default=2, show_default=True, type=click.IntRange(1, 256),
+              help="LocalCluster worker processes (one thread each: Blender is not thread-safe).")
+@click.option("--body", default=None, help="Body of a DEM whose CRS does not say (earth, mars, moon, europa).")
+@click.option("--min-relief-deg", default=None, type=click.FloatRange(0.0, 90.0),
+              help="Use only poses whose true horizon rises this much (deg) above its lowest part [profile: 1].")
+@click.option("--poses", default=None, type=click.IntRange(1, 10000),
+              help="Override the profile's number of hidden poses (tables 4, 5, 7, 8).")
+@click.option("--acquisitions", default=None, type=click.IntRange(0, 10000),
+              help="Override the profile's number of NavCam acquisitions (table 6).")
+@click.option("--pano-width", default=None, type=click.IntRange(64, 16384),
+              help="Override the panorama width (pixels).")
+@click.option("--samples", default=None, type=click.IntRange(1, 4096), help="Override the Cycles samples.")
+@click.option("--set", "settings", multiple=True, metavar="FIELD=VALUE",
+              help="Override any profile field, e.g. --set t4_presets=binary,clean --set frames=9 (repeatable; "
+                   "fields in render_service/campaign/profiles.py).")
+@click.option("--no-progress", is_flag=True, help="No progress bars (logs only).")
+def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str | None, workers: int,
+             body: str | None, min_relief_deg: float | None, poses: int | None, acquisitions: int | None,
+             pano_width: int | None, samples: int | None, settings: tuple[str, ...], no_progress: bool) -> None:
+    """Run (or resume) the report's test campaign (tables 4-8) end to end from rendered images.
+
+    Exit status 0 when the harness ran (bad fixes are results, in results.csv), 1 on bad arguments
+    or when cases crashed the harness (running the same command again retries them).
+    """
+    from render_service.campaign import CampaignOptions, run_campaign  # noqa: PLC0415
+    from render_service.campaign.profiles import parse_setting  # noqa: PLC0415
+
+    overrides = dict(parse_setting(s) for s in settings)
+    overrides |= {"n_poses": poses, "n_acquisitions": acquisitions, "pano_width": pano_width, "samples": samples}
+    if poses is not None:
+        overrides.update({"n_window_poses": poses, "n_heading_poses": poses})
+    run_campaign(CampaignOptions(out=out, dem=dem, profile=profile_name, seed=seed, scheduler=scheduler,
+                                 workers=workers, body=body, min_relief_deg=min_relief_deg,
+                                 overrides={k: v for k, v in overrides.items() if v is not None},
+                                 progress=not no_progress))
+    click.echo(f"results: {out / 'results.csv'}, {out / 'summary.json'}, {out / 'report.html'}")
+
+
+def register(group: click.Group) -> None:
+    """Add ``campaign`` to the root ``skyloc`` group."""
+    group.add_command(campaign)
