@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.locate.fix import FixPictures
 from board.pose.sphere import enu_az_el
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,8 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
 
     out = Path(out)
     fig, (ax_map, ax_sky) = plt.subplots(1, 2, figsize=(14, 5.5), gridspec_kw={"width_ratios": [1, 1.6]})
-    sm, g = fix.score_map, fix.grid
+    pics = fix.pictures or FixPictures()
+    sm, g = pics.score_map, pics.grid
     if sm is not None and g is not None:
         r0, c0 = sm.region.row0, sm.region.col0
         fr, fc = int(round(fix.grid_row)) - r0, int(round(fix.grid_col)) - c0
@@ -66,13 +68,13 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
         ax_map.set_axis_off()
     ax_map.set_title(f"score map ({fix.mode}): status {fix.status}")
     # skyline overlay in ENU azimuth
-    if fix.db_skyline_deg is not None and fix.query_el_deg is not None:
-        n = fix.db_skyline_deg.size
-        az_db = fix.db_azimuth_start_deg + np.arange(n + 1) * 360.0 / n
-        ax_sky.plot(az_db, np.append(fix.db_skyline_deg, fix.db_skyline_deg[0]), "k-", lw=1.2,
+    if pics.db_skyline_deg is not None and pics.query_el_deg is not None:
+        n = pics.db_skyline_deg.size
+        az_db = pics.db_azimuth_start_deg + np.arange(n + 1) * 360.0 / n
+        ax_sky.plot(az_db, np.append(pics.db_skyline_deg, pics.db_skyline_deg[0]), "k-", lw=1.2,
                     label="database (interpolated at the fix)")
-        seen = np.isfinite(fix.query_el_deg)
-        az_q, el_q = enu_az_el(fix.query_theta_deg[seen], fix.query_el_deg[seen], fix.heading_deg, fix.pitch_deg,
+        seen = np.isfinite(pics.query_el_deg)
+        az_q, el_q = enu_az_el(pics.query_theta_deg[seen], pics.query_el_deg[seen], fix.heading_deg, fix.pitch_deg,
                                fix.roll_deg)
         ax_sky.plot(np.mod(az_q, 360.0), el_q - fix.offset_deg, "r.", ms=3,
                     label="query (rotated by the fitted pose, offset removed)")

@@ -13,6 +13,8 @@ variance is inflated by ``n / n_eff`` with ``n_eff`` from the residual's autocor
 
 The reported position covariance is the sum of both (the local one resolves between grid nodes,
 the global one catches secondary minima).
+
+The status policy (:func:`fix_status`) turns those measures into one of :data:`STATUSES`.
 """
 from __future__ import annotations
 
@@ -23,6 +25,15 @@ import numpy as np
 
 #: chi-square quantile, 2 degrees of freedom, 95 %
 CHI2_2D_95 = 5.991464547107979
+
+#: the fix is trustworthy
+STATUS_OK = "ok"
+#: a pose is given but another place (or heading) fits almost as well, or it is poorly constrained
+STATUS_AMBIGUOUS = "ambiguous"
+#: the best match does not fit: the skyline is not in this database, or the extraction is wrong
+STATUS_FAILED = "failed"
+#: every status of a fix, best first
+STATUSES = (STATUS_OK, STATUS_AMBIGUOUS, STATUS_FAILED)
 
 
 @dataclass
@@ -137,3 +148,53 @@ def map_likelihood(score: np.ndarray, xy, *, best_xy: tuple[float, float], s2: f
         if out.any():
             best_far = min(best_far, float(box[out].min()))
     return MapLikelihood(cov, far_mass, best_far, smin, angle_var)
+
+
+@dataclass(frozen=True)
+class FixEvidence:
+    """What the status policy looks at (degrees, metres in the database CRS).
+
+    rms_deg : RMS residual of the best match; far_mass, ambiguity_ratio : see :class:`MapLikelihood`
+    (NaN without a score map); sigma_m : the larger 1-sigma position error; sigma_heading_deg : 1-sigma
+    heading error; on_search_edge : the refined position is pinned to the edge of the searched area
+    (False when the position was not estimated); mode : the search mode; step_m : grid step.
+    """
+
+    rms_deg: float
+    far_mass: float
+    ambiguity_ratio: float
+    sigma_m: float
+    sigma_heading_deg: float
+    on_search_edge: bool
+    mode: str
+    step_m: float
+
+
+def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
+    """(status, reason) of a fix: the first rule that applies, in the order failed, ambiguous, ok.
+
+    failed: the RMS residual exceeds ``th.max_rms_deg``.  ambiguous: the likelihood mass far from the
+    fix exceeds ``th.max_far_mass``; or the position's 1-sigma exceeds ``th.max_sigma_steps`` grid
+    steps; or the position is pinned to the edge of the searched area; or the heading's 1-sigma
+    exceeds ``th.max_sigma_heading_deg``.  The reason says what and the fix where there is one.
+    """
+    step = ev.step_m
+    if ev.rms_deg > th.max_rms_deg:
+        return STATUS_FAILED, (f"the best match leaves {ev.rms_deg:.2f} deg RMS residual beyond the database's "
+                               f"interpolation error (> {th.max_rms_deg}): the "
+                               "skyline does not fit this database (wrong area, or a bad extraction)")
+    if math.isfinite(ev.far_mass) and ev.far_mass > th.max_far_mass:
+        return STATUS_AMBIGUOUS, (f"{ev.far_mass:.0%} of the likelihood lies more than "
+                                  f"{th.ambiguity_radius_steps * step:g} m away (score ratio {ev.ambiguity_ratio:.2f}): "
+                                  "another place fits almost as well")
+    if ev.sigma_m > th.max_sigma_steps * step:
+        return STATUS_AMBIGUOUS, (f"position poorly constrained (1-sigma {ev.sigma_m:.1f} m "
+                                  f"> {th.max_sigma_steps * step:g} m)")
+    if ev.on_search_edge:
+        # an optimum pinned to the edge of the searched area says the rover is probably beyond it
+        what = "database grid" if ev.mode == "lost" else "search window"
+        return STATUS_AMBIGUOUS, (f"the best match lies on the edge of the {what}: the rover is probably "
+                                  "outside it" + (" (widen --radius)" if ev.mode != "lost" else ""))
+    if ev.sigma_heading_deg > th.max_sigma_heading_deg:
+        return STATUS_AMBIGUOUS, f"heading poorly constrained (1-sigma {ev.sigma_heading_deg:.1f} deg)"
+    return STATUS_OK, ""

@@ -88,7 +88,7 @@ def test_map_likelihood_matches_a_direct_evaluation():
 
 def test_grid_error_is_the_bilinear_midcell_error_of_a_quadratic_field():
     """Skylines varying quadratically with position: the estimate equals the true mid-cell error."""
-    from board.locate import _grid_error_samples
+    from board.locate.grid_error import grid_error_samples as _grid_error_samples
     from board.pose.refine import LocalDB
 
     rng = np.random.default_rng(5)
@@ -110,7 +110,7 @@ def test_grid_error_is_the_bilinear_midcell_error_of_a_quadratic_field():
 
 
 def test_noise_given_weights_solves_the_weighted_chi_square():
-    from board.locate import _noise_given_weights
+    from board.locate.grid_error import noise_given_weights as _noise_given_weights
 
     rng = np.random.default_rng(6)
     g2 = rng.uniform(0, 0.5, 300) ** 2
