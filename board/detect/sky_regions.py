@@ -63,6 +63,9 @@ class DetectorParams:
     saturation_level: float = 0.98      # fraction of full scale counted as saturated
     min_seen_rows: int = 3              # seen rows needed on each side of the line
     wrap_margin_columns: int = 200
+    use_colour: bool = True             # add log(blue / red) to the features of a colour image
+    intensity_subpixel_separation: float = 1.5   # intensity separation above which the line is placed on the grey step
+    min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
 
 
 @dataclass
@@ -85,29 +88,49 @@ class Detection:
 
 # -- features -------------------------------------------------------------------------------------
 def _texture(grey: np.ndarray, win: int) -> np.ndarray:
-    """Local std over ``win`` rows of one column: the smaller of the windows ending and starting at each pixel.
+    """Local roughness over ``win`` rows of one column: RMS of the vertical second difference
+    ``g[r-1] - 2 g[r] + g[r+1]``, the smaller of the windows ending and starting at each pixel.
 
-    One column wide so that a steep line does not leak into the window from the neighbouring columns.
+    A second difference ignores smooth vertical gradients (a haze or dust gradient brightening to the
+    horizon, a sun halo), which a plain standard deviation takes for texture; one column wide so that
+    a steep line does not leak into the window from the neighbouring columns.
     """
     import cv2
 
     f = grey.astype(np.float32, copy=False)
-    sq = f * f
+    d2 = np.zeros_like(f)
+    d2[1:-1] = f[:-2] + f[2:]
+    d2[1:-1] -= 2.0 * f[1:-1]
+    np.multiply(d2, d2, out=d2)
     out = None
     for anchor_y in (win - 1, 0):
-        m = cv2.boxFilter(f, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
-        m2 = cv2.boxFilter(sq, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
-        np.multiply(m, m, out=m)
-        np.subtract(m2, m, out=m2)
-        del m
+        m = cv2.boxFilter(d2, -1, (1, win), anchor=(0, anchor_y), borderType=cv2.BORDER_REFLECT)
         if out is None:
-            out = m2
+            out = m
         else:
-            np.minimum(out, m2, out=out)
-            del m2
-    del sq
+            np.minimum(out, m, out=out)
+            del m
+    del d2
     np.maximum(out, 0.0, out=out)
     return np.sqrt(out, out=out)
+
+
+def _chroma(image: np.ndarray) -> np.ndarray | None:
+    """log(blue / red) of a BGR image (float32, (H, W)), None for a grey one.
+
+    Sky and regolith differ in colour even where their grey levels meet (a clear sky brightening to
+    the horizon next to sunlit ground; a butterscotch dusty sky is still less red than the regolith).
+    """
+    img = np.asarray(image)
+    if img.ndim != 3:
+        return None
+    full = 255.0 if img.dtype == np.uint8 else (65535.0 if img.dtype == np.uint16 else 1.0)
+    eps = np.float32(2.0 / 255.0 * full)
+    b = img[..., 0].astype(np.float32) + eps
+    r = img[..., 2].astype(np.float32) + eps
+    np.divide(b, r, out=b)
+    del r
+    return np.log(b, out=b)
 
 
 def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
@@ -224,6 +247,9 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     tex = _texture(grey, P.texture_window_px)
     tex += 1e-3
     np.log(tex, out=tex)
+    chroma = _chroma(image) if P.use_colour else None
+    if chroma is not None and P.blur_sigma_px > 0:
+        chroma = cv2.sepFilter2D(chroma, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
 
     # first split, per azimuth sector: Otsu on the seen pixels; the sky class is the one filling
@@ -252,12 +278,14 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     del top, bottom
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
-    # vertical step between row r-1 and r, stored at r (0 where either pixel is unseen)
-    diff = np.zeros((H, W), dtype=np.float32)
-    np.subtract(blur[1:], blur[:-1], out=diff[1:])
-    diff[1:] *= seen[1:] & seen[:-1]
+    seen_pair = seen[1:] & seen[:-1]
     feats = [blur, tex]
     floors = [0.01, 0.05]
+    step_features = [0]
+    if chroma is not None:
+        feats.append(chroma)
+        floors.append(0.01)
+        step_features.append(2)
     line = None
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
@@ -274,6 +302,12 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
             return _empty(W, diag)
         polarity = np.where(mu_g >= mu_s, 1.0, -1.0).astype(np.float32)   # sky -> ground step sign, per column
         contrast = np.abs(mu_g - mu_s)
+        # the smooth features (intensity, colour) projected on their discriminant, scaled so that sky
+        # is 0 and ground 1 in every column; its vertical step (r-1 -> r, stored at r) is the edge evidence
+        proj, sd_proj_sky = _discriminant(feats, stats, step_features)
+        diff = np.zeros((H, W), dtype=np.float32)
+        np.subtract(proj[1:], proj[:-1], out=diff[1:])
+        diff[1:] *= seen_pair
         # region cost of a boundary just above row b: sky-like pixels below + ground-like above
         qcum = np.zeros((H + 1, W), dtype=np.float32)
         np.cumsum(np.where(seen, p - np.float32(0.5), np.float32(0.0)), axis=0, out=qcum[1:])
@@ -284,7 +318,7 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         node *= np.float32(1.0 / P.region_scale_px)
         np.minimum(node, np.float32(P.region_cap), out=node)
         # + edge term: 1 - (sky -> ground step, scaled to the scene contrast)
-        edge = diff * (polarity / np.maximum(0.5 * contrast, 1e-3).astype(np.float32))[None, :]
+        edge = diff * np.float32(2.0)
         np.clip(edge, 0.0, 1.0, out=edge)
         edge *= np.float32(-P.edge_weight)
         edge += np.float32(P.edge_weight)
@@ -309,15 +343,23 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
             if sky_cls.sum() < 50 or ground_cls.sum() < 50:
                 break
     sep_col = contrast / np.hypot(sd_s, sd_g)
+    # separation of the two classes over all features (Mahalanobis-like, independent features)
+    sep_all = np.sqrt(sum((np.abs(st[2] - st[0]) / np.hypot(st[1], st[3])) ** 2 for st in stats))
     diag.update(intensity_sky=float(np.median(mu_s)), intensity_ground=float(np.median(mu_g)),
                 texture_sky=float(np.median(stats[1][0])), texture_ground=float(np.median(stats[1][2])),
                 intensity_sigma_sky=float(np.median(sd_s)), intensity_sigma_ground=float(np.median(sd_g)),
                 polarity_flipped_fraction=float(np.mean(polarity < 0)),
-                separation=float(np.median(sep_col)))
-    step = diff * polarity[None, :]
+                intensity_separation=float(np.median(sep_col)), separation=float(np.median(sep_all)))
     b = line.astype(np.int64)
-    y = _subpixel(step, b)
-    conf = _confidence(grey, blur, p, seen, b, polarity, contrast, sd_s, P)
+    # sub-pixel position from the intensity step where intensity separates the classes (colour edges
+    # shift with lens dispersion), from the discriminant elsewhere
+    istep = np.zeros((H, W), dtype=np.float32)
+    np.subtract(blur[1:], blur[:-1], out=istep[1:])
+    istep[1:] *= seen_pair
+    istep *= polarity[None, :]
+    y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
+    del istep
+    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P)
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
     # grow only the masked runs that are long enough to have dragged the smooth path off the line
@@ -371,18 +413,44 @@ def _window_mean(a: np.ndarray, w: np.ndarray, b: np.ndarray, lo: int, hi: int) 
     return m, sw
 
 
-def _confidence(grey: np.ndarray, blur: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
-                polarity: np.ndarray, contrast: np.ndarray, sigma_sky: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring)."""
+def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Fisher projection of the features ``which`` per column, scaled so sky maps to 0 and ground to 1.
+
+    Independent features: weight ``(mu_g - mu_s) / var`` each (var: mean of the two class variances),
+    normalised by the total; returns the projected (H, W) float32 image and the sky spread on it (W,).
+    """
+    W = feats[0].shape[1]
+    coef, den = [], np.zeros(W)
+    for i in which:
+        ms, ss, mg, sg = stats[i][:4]
+        a = (mg - ms) / (0.5 * (ss * ss + sg * sg))
+        coef.append(a)
+        den += (mg - ms) * a
+    den = np.maximum(den, 1e-12)
+    proj = np.zeros(feats[0].shape, dtype=np.float32)
+    offset, var_s = np.zeros(W), np.zeros(W)
+    for i, a in zip(which, coef):
+        a = a / den
+        proj += feats[i] * a.astype(np.float32)[None, :]
+        offset += a * stats[i][0]
+        var_s += (a * stats[i][1]) ** 2
+    proj -= offset.astype(np.float32)[None, :]
+    return proj, np.sqrt(var_s)
+
+
+def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
+                sigma_sky: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring).
+
+    proj : the discriminant image (sky 0, ground 1 per column); sigma_sky : its sky spread."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
-    above, n_above = _window_mean(blur, sf, b, -w, 0)
-    below, n_below = _window_mean(blur, sf, b, 0, w)
-    local = polarity * (below - above)
-    # noise of a w-pixel mean of the blurred image: generous bound from the sky spread
-    noise = np.maximum(sigma_sky, 0.004) / np.sqrt(w)
-    c_contrast = np.minimum(np.clip((local / noise - 3.0) / 3.0, 0, 1),
-                            np.clip((local / np.maximum(contrast, 1e-3) - 0.1) / 0.2, 0, 1))
+    above, n_above = _window_mean(proj, sf, b, -w, 0)
+    below, n_below = _window_mean(proj, sf, b, 0, w)
+    local = below - above
+    # noise of a w-pixel mean of the projection: generous bound from the sky spread
+    noise = np.maximum(sigma_sky, P.min_noise) / np.sqrt(w)
+    c_contrast = np.minimum(np.clip((local / noise - 3.0) / 3.0, 0, 1), np.clip((local - 0.1) / 0.2, 0, 1))
     R = P.region_window_px
     sky_like = (p > 0.5).astype(np.float32)
     fs, ns = _window_mean(sky_like, sf, b, -R, 0)
