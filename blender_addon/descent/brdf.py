@@ -18,7 +18,13 @@ from .constants import HAPKE_B0, HAPKE_G, HAPKE_H, HAPKE_THETA_BAR_DEG, HAPKE_W
 
 
 def _dot(a, b):
-    return np.sum(np.asarray(a) * np.asarray(b), axis=-1)
+    a = np.asarray(a)
+    b = np.asarray(b)
+    if b.ndim == 1:
+        return a @ b
+    if a.ndim == 1:
+        return b @ a
+    return np.einsum("...i,...i->...", a, b)
 
 
 def phong_alpha(l, v) -> np.ndarray:
@@ -30,6 +36,20 @@ def phong_alpha(l, v) -> np.ndarray:
     return 0.5 * (1.0 + np.clip(_dot(l, v), -1.0, 1.0))
 
 
+def eq9(ndl, ndv, cos_g, rho_a, rho_d, rho_s, k, lit):
+    """Memorandum eq. 9 on cosines, elementwise (numpy arrays, or scalars inside numba kernels).
+
+    ``E = rho_a + lit * [alpha rho_d max(N.L, 0) + (1 - alpha) rho_s max(R.V, 0)^k [N.L > 0]]`` with
+    ``R.V = 2 (N.L)(N.V) - L.V`` (R the mirror direction of L) and ``alpha = (1 + L.V) / 2``
+    (:func:`phong_alpha`).  ndl = N.L, ndv = N.V, cos_g = L.V (cosine of the phase angle).
+    """
+    alpha = 0.5 * (1.0 + cos_g)
+    ndl_p = 0.5 * (ndl + abs(ndl))
+    rdv = 2.0 * ndl * ndv - cos_g
+    rdv_p = 0.5 * (rdv + abs(rdv))
+    return rho_a + lit * (alpha * rho_d * ndl_p + (1.0 - alpha) * rho_s * rdv_p ** k * (ndl > 0.0))
+
+
 def quasi_phong(n, l, v, *, rho_a, rho_d, rho_s: float = 0.2, k: float = 10.0, lit=1.0) -> np.ndarray:
     """Memorandum eq. 9: ``E = rho_a + alpha rho_d (N.L) + (1 - alpha) rho_s (R.V)^k`` (unitless).
 
@@ -37,15 +57,10 @@ def quasi_phong(n, l, v, *, rho_a, rho_d, rho_s: float = 0.2, k: float = 10.0, l
     the memorandum sets rho_a = rho_d); rho_s : specular albedo; k : Phong sharpness.
     R = 2 (N.L) N - L is the mirror direction of L; N.L and R.V are clipped at 0 (no light from
     behind the facet).  ``lit`` (0..1) scales the direct terms (cast shadows; 1 = N.L only, as in
-    the memorandum).
+    the memorandum).  Computed by :func:`eq9`.
     """
     n = np.asarray(n, dtype=np.float64)
-    ndl = _dot(n, l)
-    r = 2.0 * ndl[..., None] * n - np.asarray(l)
-    rdv = np.clip(_dot(r, v), 0.0, None)
-    alpha = phong_alpha(l, v)
-    direct = alpha * rho_d * np.clip(ndl, 0.0, None) + (1.0 - alpha) * rho_s * rdv ** k * (ndl > 0)
-    return rho_a + lit * direct
+    return eq9(_dot(n, l), _dot(n, v), np.clip(_dot(l, v), -1.0, 1.0), rho_a, rho_d, rho_s, k, lit)
 
 
 @dataclass(frozen=True)

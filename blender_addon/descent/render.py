@@ -60,6 +60,25 @@ class AppearanceOptions:
         return (self.brdf == "hapke") if self.shadows is None else bool(self.shadows)
 
 
+def _merge_visible_lights(lights: list[Light], shadowed: set[str]) -> list[Light]:
+    """The sources the visible camera sees, those sharing a direction merged (irradiances added).
+
+    A source with its own shadow map is kept apart (its name selects the map)."""
+    out: list[Light] = []
+    for s in lights:
+        if s.kind == "thermal" or s.irradiance_w_m2 <= 0:
+            continue
+        for i, o in enumerate(out):
+            if (o.name not in shadowed and s.name not in shadowed
+                    and np.allclose(o.direction, s.direction, atol=1e-9)):
+                out[i] = Light(o.name, o.azimuth_deg, o.elevation_deg, o.irradiance_w_m2 + s.irradiance_w_m2,
+                               o.apparent_diameter_arcmin, o.kind)
+                break
+        else:
+            out.append(s)
+    return out
+
+
 class DescentRenderer:
     """Precomputed scene (normals, shadow maps, temperature map) and the per-frame renderer."""
 
@@ -71,6 +90,7 @@ class DescentRenderer:
         self.step_m = 0.5 * terrain.res_m if step_m is None else float(step_m)
         h = terrain.height
         self._bmax = _raycast.block_max(h, _BLOCK)
+        self._zrange = (float(h.min()), float(h.max()))
         self.normals = terrain.normals()
         self.lit: dict[str, np.ndarray] = {}
         if options.cast_shadows:
@@ -93,6 +113,7 @@ class DescentRenderer:
                        "albedo": terrain.albedo, "temperature": self.temperature,
                        **{f"lit:{k}": v for k, v in self.lit.items()}}
         self._rays_cam: dict[int, np.ndarray] = {}
+        self._visible_lights = _merge_visible_lights(self.lights, set(self.lit))
         log.info("descent renderer: %s terrain, brdf %s, thermal %s, shadows %s, T %.1f-%.1f K",
                  terrain.spec, options.brdf, options.thermal, options.cast_shadows, self.temperature.min(),
                  self.temperature.max())
@@ -112,14 +133,15 @@ class DescentRenderer:
         dirs = np.ascontiguousarray(self._camera_rays(cam) @ R_wc.T)
         t = np.empty(dirs.shape[0])
         tr = self.terrain
-        _raycast.cast_rays(tr.height, self._bmax, _BLOCK, tr.x0, tr.y0, tr.res_m, origin, dirs, self.step_m, t)
+        _raycast.cast_rays(tr.height, self._bmax, _BLOCK, tr.x0, tr.y0, tr.res_m, *self._zrange, origin, dirs,
+                           self.step_m, t)
         return dirs, origin, t
 
     def range_along(self, origin, direction) -> float:
         """Distance (m) from ``origin`` along the unit ``direction`` to the terrain (NaN = miss)."""
         t = np.empty(1)
         tr = self.terrain
-        _raycast.cast_rays(tr.height, self._bmax, _BLOCK, tr.x0, tr.y0, tr.res_m,
+        _raycast.cast_rays(tr.height, self._bmax, _BLOCK, tr.x0, tr.y0, tr.res_m, *self._zrange,
                            np.asarray(origin, dtype=np.float64),
                            np.ascontiguousarray(np.asarray(direction, dtype=np.float64).reshape(1, 3)), self.step_m, t)
         return float(t[0])
@@ -140,9 +162,7 @@ class DescentRenderer:
             e = o.ambient * albedo
         else:
             e = np.zeros(albedo.shape)
-        for s in self.lights:
-            if s.kind == "thermal" or s.irradiance_w_m2 <= 0:
-                continue
+        for s in self._visible_lights:
             w = s.irradiance_w_m2 / SUN_IRRADIANCE_W_M2
             shade = lit.get(s.name, 1.0)
             if o.brdf == "tm":
@@ -153,7 +173,34 @@ class DescentRenderer:
 
     def render(self, cam: DescentCamera, R_wb, p_wb) -> dict[str, np.ndarray]:
         """One frame of both channels: {"visible": brightness, "thermal": K, "range": m along the ray,
-        "x", "y", "z": hit point (m)}, each (H, W) float, NaN where the pixel sees no terrain."""
+        "x", "y", "z": hit point (m)}, each (H, W) float, NaN where the pixel sees no terrain.
+
+        Eq. 9 runs in the fused numba kernel; Hapke in numpy (:meth:`render_reference`)."""
+        if self.options.brdf != "tm":
+            return self.render_reference(cam, R_wb, p_wb)
+        R_wc = np.asarray(R_wb, dtype=np.float64) @ cam.R_body_cam
+        origin = np.asarray(p_wb, dtype=np.float64) + np.asarray(R_wb, dtype=np.float64) @ cam.t_body_cam
+        dirs = np.ascontiguousarray(self._camera_rays(cam) @ R_wc.T)
+        n = dirs.shape[0]
+        out = {k: np.empty(n) for k in ("range", "visible", "thermal", "x", "y")}
+        tr = self.terrain
+        g = self._grids
+        lights = self._visible_lights
+        lit = (np.stack([self.lit[s.name] for s in lights]) if self.lit
+               else np.ones((len(lights), 1, 1), np.float32))
+        o = self.options
+        _raycast.render_eq9(tr.height, self._bmax, _BLOCK, tr.x0, tr.y0, tr.res_m, *self._zrange, origin, dirs,
+                            self.step_m, g["nx"], g["ny"], g["nz"], g["albedo"], g["temperature"], lit,
+                            np.array([s.direction for s in lights]).reshape(-1, 3),
+                            np.array([s.irradiance_w_m2 / SUN_IRRADIANCE_W_M2 for s in lights]),
+                            o.rho_s, o.k_phong, o.ambient, out["range"], out["visible"], out["thermal"], out["x"],
+                            out["y"])
+        out["z"] = origin[2] + out["range"] * dirs[:, 2]
+        shape = (cam.model.height, cam.model.width)
+        return {k: v.reshape(shape) for k, v in out.items()}
+
+    def render_reference(self, cam: DescentCamera, R_wb, p_wb) -> dict[str, np.ndarray]:
+        """:meth:`render` in numpy after the ray cast (any BRDF): the reference of the fused kernel."""
         dirs, origin, t = self.cast(cam, R_wb, p_wb)
         ok = np.isfinite(t)
         tt = t[ok]

@@ -127,7 +127,9 @@ def conduction_surface_temperature(normals, lights: list[Light], *, thermal_iner
     hours = -math.pi + 2 * math.pi * (np.arange(steps_per_day) + 0.5) / steps_per_day
     sun_dirs = _sun_path(hours)                            # (steps, 3)
     flux_day = f_fixed[None, :] + (1 - bond_albedo) * sun_e * np.clip(sun_dirs @ n.T, 0.0, None)
-    t = np.full((n.shape[0], n_layers), float(radiative_equilibrium_k(flux_day.mean(), emissivity=emissivity)) * 0.95)
+    # start every facet near its own deep temperature (the day-mean balance), so facets converge alike
+    t0 = 0.95 * radiative_equilibrium_k(flux_day.mean(axis=0), emissivity=emissivity)
+    t = np.repeat(t0[:, None], n_layers, axis=1)
     # tridiagonal system per facet: a_j T_{j-1} + b_j T_j + c_j T_{j+1} = d_j
     lower = np.concatenate([[0.0], -cond])
     upper = np.concatenate([-cond, [0.0]])
@@ -165,7 +167,7 @@ def conduction_surface_temperature(normals, lights: list[Light], *, thermal_iner
     return now.reshape(shape)
 
 
-def conduction_temperature_map(normals: np.ndarray, lights: list[Light], *, table_size: int = 25,
+def conduction_temperature_map(normals: np.ndarray, lights: list[Light], *, table_size: int = 33,
                                passes: int = 1, **kw) -> np.ndarray:
     """Conduction temperatures (K) of a (ny, nx, 3) normal grid through a table over facet orientation.
 
