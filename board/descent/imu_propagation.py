@@ -110,8 +110,13 @@ def propagate(x: VehicleState, imu: np.ndarray, t0: float, t1: float, g_w: np.nd
     Qd = np.zeros((N_VEHICLE, N_VEHICLE))
     if t1 <= t0:
         return x.copy(), Phi, Qd
-    qc = np.diag(np.concatenate([np.full(3, noise.gyro_noise ** 2), np.full(3, noise.accel_noise ** 2),
-                                 np.full(3, noise.gyro_bias_rw ** 2), np.full(3, noise.accel_bias_rw ** 2)]))
+    # G Qc G^T is diagonal and constant: the accelerometer noise enters as R n_a with isotropic n_a
+    gqg = np.zeros(N_VEHICLE)
+    gqg[ITH] = noise.gyro_noise ** 2
+    gqg[IV] = noise.accel_noise ** 2
+    gqg[IBG] = noise.gyro_bias_rw ** 2
+    gqg[IBA] = noise.accel_bias_rw ** 2
+    eye = np.eye(N_VEHICLE)
     ts = imu[:, 0]
     i = max(int(np.searchsorted(ts, t0, side="right")) - 1, 0)
     t = t0
@@ -121,11 +126,11 @@ def propagate(x: VehicleState, imu: np.ndarray, t0: float, t1: float, g_w: np.nd
             i += 1
             continue
         dt = t_next - t
-        x, F, G = imu_step(x, imu[i, 1:4], imu[i, 4:7], dt, g_w)
+        x, F, _ = imu_step(x, imu[i, 1:4], imu[i, 4:7], dt, g_w)
         Fd = F * dt
-        phi = np.eye(N_VEHICLE) + Fd + 0.5 * Fd @ Fd
-        GQG = G @ qc @ G.T * dt
-        Qd = phi @ Qd @ phi.T + GQG
+        phi = eye + Fd + 0.5 * Fd @ Fd
+        Qd = phi @ Qd @ phi.T
+        Qd[np.diag_indices(N_VEHICLE)] += gqg * dt
         Phi = phi @ Phi
         t = t_next
         if t_next >= (ts[i + 1] if i + 1 < len(ts) else np.inf):
