@@ -173,7 +173,9 @@ class StorageMonitor:
             return (f"the data directory is short of space ({free / 2**20:.1f} MiB free, "
                     f"{self.min_free_bytes / 2**20:.0f} MiB needed): jobs wait until space is freed")
         try:
-            _probe_write(self.data_dir)
+            for folder in (self.data_dir, self.data_dir / "dems", self.data_dir / "jobs"):
+                if folder.is_dir() or folder == self.data_dir:
+                    _probe_write(folder)
         except OSError as exc:
             if exc.errno in _NO_SPACE_ERRNOS:
                 return "the data directory is out of disk space: jobs wait until space is freed"

@@ -26,15 +26,19 @@ def free_port() -> int:
 class Server:
     """`python -m skyloc.cli serve` on a free loopback port, with a LocalCluster of ``workers`` processes."""
 
-    def __init__(self, data_dir: Path, *, workers: int = 2, token: str | None = TOKEN) -> None:
+    def __init__(self, data_dir: Path, *, workers: int = 2, token: str | None = TOKEN,
+                 env: dict[str, str] | None = None, log_dir: Path | None = None) -> None:
         self.data_dir = Path(data_dir)
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        env = dict(os.environ)
-        env.pop("SKYLOC_TOKEN", None)
+        full_env = dict(os.environ)
+        full_env.pop("SKYLOC_TOKEN", None)
         if token is not None:
-            env["SKYLOC_TOKEN"] = token
-        self.log = open(self.data_dir.parent / f"server-{self.port}.log", "wb")
+            full_env["SKYLOC_TOKEN"] = token
+        full_env.update(env or {})
+        env = full_env
+        self.log_path = Path(log_dir or self.data_dir.parent) / f"server-{self.port}.log"
+        self.log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "skyloc.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
              "--data", str(self.data_dir), "--workers", str(workers), "--log-level", "warning"],
@@ -57,7 +61,7 @@ class Server:
 
     def read_log(self) -> str:
         self.log.flush()
-        return (self.data_dir.parent / f"server-{self.port}.log").read_text(errors="replace")[-4000:]
+        return self.log_path.read_text(errors="replace")[-4000:]
 
     def upload(self, path: Path, *, name: str | None = None, body: str | None = None) -> httpx.Response:
         data = {"body": body} if body else None
