@@ -1,6 +1,11 @@
 """Pictures of a fix: the score map around it (report fig. 18) and the skyline overlay (fig. 20).
 
-matplotlib (Agg backend) is imported lazily: the rest of ``board`` never needs it.
+The map's axes are metres east and north of the fix (the CRS coordinates of the fix are in the
+labels), so UTM northings do not turn into a 1e6 offset.  Positions the exact pruning skipped hold
+only a lower bound of their score (blocks of them would show as stepped rectangles): they are drawn
+in grey and named in the legend.  The 95 % ellipse is drawn on the map and, enlarged, in an inset
+(on a +-200 m crop a metre-sized ellipse would be invisible).  matplotlib (Agg backend) is
+imported lazily: the rest of ``board`` never needs it.
 """
 from __future__ import annotations
 
@@ -26,47 +31,69 @@ def _plt():
     return plt
 
 
+def _ellipse(fix, color: str = "r", lw: float = 1.5, label: str | None = "95 % region"):
+    from matplotlib.patches import Ellipse  # noqa: PLC0415
+
+    a, b, az = fix.ellipse95_m
+    if not all(math.isfinite(v) for v in (a, b, az)):
+        return None
+    # axes are (east, north) offsets from the fix; az is clockwise from north, matplotlib's angle anticlockwise
+    return Ellipse((0.0, 0.0), 2 * a, 2 * b, angle=90.0 - az, fill=False, color=color, lw=lw, label=label)
+
+
 def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None = None, half_window: int = 40) -> Path:
     """Write a PNG with the score map around ``fix`` and the query skyline over the matched one.
 
-    fix : board.locate.Fix; truth : optional true (x, y) metres, drawn as a circle;
-    half_window : half-size of the map crop, grid steps.  Returns the path written (atomically).
+    fix : board.locate.Fix; truth : optional true (x, y) metres in the database CRS, drawn as a circle
+    and its error written in the title; half_window : half-size of the map crop, grid steps.
+    Returns the path written (atomically).
     """
     plt = _plt()
-    from matplotlib.patches import Ellipse  # noqa: PLC0415
+    from matplotlib.colors import ListedColormap  # noqa: PLC0415
 
     out = Path(out)
-    fig, (ax_map, ax_sky) = plt.subplots(1, 2, figsize=(14, 5.5), gridspec_kw={"width_ratios": [1, 1.6]})
+    fig, (ax_map, ax_sky) = plt.subplots(1, 2, figsize=(14, 5.8), gridspec_kw={"width_ratios": [1, 1.6]})
     pics = fix.pictures or FixPictures()
     sm, g = pics.score_map, pics.grid
+    tx, ty = (None, None) if truth is None else (truth[0] - fix.x, truth[1] - fix.y)
     if sm is not None and g is not None:
         r0, c0 = sm.region.row0, sm.region.col0
         fr, fc = int(round(fix.grid_row)) - r0, int(round(fix.grid_col)) - c0
         i0, i1 = max(fr - half_window, 0), min(fr + half_window + 1, sm.region.nrows)
         j0, j1 = max(fc - half_window, 0), min(fc + half_window + 1, sm.region.ncols)
         crop = sm.score[i0:i1, j0:j1]
+        exact = sm.exact[i0:i1, j0:j1]
         smin = float(np.min(sm.score[np.isfinite(sm.score)]))
-        rel = np.log10(np.where(np.isfinite(crop), crop, np.nan) / max(smin, 1e-12))
+        rel = np.log10(np.where(np.isfinite(crop) & exact, crop, np.nan) / max(smin, 1e-12))
         xa, ya = g.xy(r0 + i0, c0 + j0)
         xb, yb = g.xy(r0 + i1 - 1, c0 + j1 - 1)
         step = abs(g.geotransform[1])
-        extent = (min(xa, xb) - step / 2, max(xa, xb) + step / 2, min(ya, yb) - step / 2, max(ya, yb) + step / 2)
+        extent = (min(xa, xb) - step / 2 - fix.x, max(xa, xb) + step / 2 - fix.x,
+                  min(ya, yb) - step / 2 - fix.y, max(ya, yb) + step / 2 - fix.y)
+        pruned = np.isfinite(crop) & ~exact
+        if pruned.any():
+            ax_map.imshow(np.where(pruned, 1.0, np.nan), extent=extent, origin="upper", interpolation="nearest",
+                          cmap=ListedColormap(["0.8"]), vmin=0, vmax=1)
+            ax_map.plot([], [], "s", color="0.8", ms=8, label="pruned: cannot compete (lower bound only)")
         im = ax_map.imshow(rel, extent=extent, origin="upper", cmap="viridis_r", interpolation="nearest")
         fig.colorbar(im, ax=ax_map, label="log10(score / best score)")
-        ax_map.plot(fix.x, fix.y, "r+", ms=14, mew=2, label="fix")
-        a, b, az = fix.ellipse95_m
-        if all(math.isfinite(v) for v in (a, b, az)):
-            ax_map.add_patch(Ellipse((fix.x, fix.y), 2 * a, 2 * b, angle=90.0 - az, fill=False, color="r",
-                                     lw=1.5, label="95 % region"))
+        ax_map.plot(0, 0, "r+", ms=14, mew=2, label="fix")
+        e = _ellipse(fix)
+        if e is not None:
+            ax_map.add_patch(e)
         if truth is not None:
-            ax_map.plot(truth[0], truth[1], "o", mfc="none", mec="w", ms=10, mew=2, label="truth")
-        ax_map.set_xlabel("x (m)")
-        ax_map.set_ylabel("y (m)")
-        ax_map.legend(loc="upper right", fontsize=8)
+            ax_map.plot(tx, ty, "o", mfc="none", mec="w", ms=10, mew=2, label="truth")
+        ax_map.set_xlabel(f"east of the fix (m); fix x = {fix.x:.1f}")
+        ax_map.set_ylabel(f"north of the fix (m); fix y = {fix.y:.1f}")
+        ax_map.legend(loc="upper right", fontsize=7)
+        _inset(ax_map, fix, truth=None if truth is None else (tx, ty))
     else:
         ax_map.text(0.5, 0.5, "heading mode: position given,\nno score map", ha="center", va="center")
         ax_map.set_axis_off()
-    ax_map.set_title(f"score map ({fix.mode}): status {fix.status}")
+    title = f"score map ({fix.mode}): status {fix.status}"
+    if truth is not None:
+        title += f" | truth error {math.hypot(tx, ty):.2f} m"
+    ax_map.set_title(title, fontsize=10)
     # skyline overlay in ENU azimuth
     if pics.db_skyline_deg is not None and pics.query_el_deg is not None:
         n = pics.db_skyline_deg.size
@@ -79,6 +106,7 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
         ax_sky.plot(np.mod(az_q, 360.0), el_q - fix.offset_deg, "r.", ms=3,
                     label="query (rotated by the fitted pose, offset removed)")
         ax_sky.set_xlim(0, 360)
+        ax_sky.set_xticks(np.arange(0, 361, 45))
         ax_sky.set_xlabel("azimuth (deg, clockwise from grid north)")
         ax_sky.set_ylabel("elevation (deg)")
         ax_sky.legend(loc="upper right", fontsize=8)
@@ -91,3 +119,24 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
     plt.close(fig)
     os.replace(tmp, out)
     return out
+
+
+def _inset(ax, fix, *, truth: tuple[float, float] | None) -> None:
+    """An inset zoomed on the fix: the 95 % ellipse (and the truth when it is near) at a readable scale."""
+    a, b, _ = fix.ellipse95_m
+    if not (math.isfinite(a) and a > 0):
+        return
+    half = 1.5 * a
+    if truth is not None and math.hypot(*truth) < 4 * a:
+        half = max(half, 1.2 * max(abs(truth[0]), abs(truth[1])))
+    ins = ax.inset_axes([0.02, 0.02, 0.34, 0.34])
+    ins.set_facecolor("white")
+    ins.add_patch(_ellipse(fix, lw=1.2, label=None))
+    ins.plot(0, 0, "r+", ms=9, mew=1.5)
+    if truth is not None and max(abs(truth[0]), abs(truth[1])) <= half:
+        ins.plot(*truth, "o", mfc="none", mec="k", ms=7, mew=1.5)
+    ins.set_xlim(-half, half)
+    ins.set_ylim(-half, half)
+    ins.set_aspect("equal")
+    ins.tick_params(labelsize=6)
+    ins.set_title(f"95 %: {a:.2f} x {b:.2f} m", fontsize=7)
