@@ -185,8 +185,8 @@ def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
                                "skyline does not fit this database (wrong area, or a bad extraction)")
     if math.isfinite(ev.far_mass) and ev.far_mass > th.max_far_mass:
         return STATUS_AMBIGUOUS, (f"{ev.far_mass:.0%} of the likelihood lies more than "
-                                  f"{th.ambiguity_radius_steps * step:g} m away (score ratio {ev.ambiguity_ratio:.2f}): "
-                                  "another place fits almost as well")
+                                  f"{th.ambiguity_radius_steps * step:g} m away "
+                                  f"(score ratio {ev.ambiguity_ratio:.2f}): another place fits almost as well")
     if ev.sigma_m > th.max_sigma_steps * step:
         return STATUS_AMBIGUOUS, (f"position poorly constrained (1-sigma {ev.sigma_m:.1f} m "
                                   f"> {th.max_sigma_steps * step:g} m)")
