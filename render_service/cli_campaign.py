@@ -20,7 +20,15 @@ log = logging.getLogger(__name__)
               help="Draws the site, poses (off the grid), headings, tilts, suns and texture seeds.")
 @click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Output folder (results.csv, summary.json, report.html); run again to resume.")
-@click.option("--scheduler", default=None, help="Dask scheduler address; default a LocalCluster on this machine.")
+@click.option("--scheduler", default=None,
+              help="Dask scheduler address (tls://host:8786); default a LocalCluster on this machine (mutual TLS, "
+                   "credentials generated for the run).")
+@click.option("--tls-ca-file", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="CA certificate (PEM) of the --scheduler's cluster.")
+@click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="Client certificate (PEM) for the --scheduler.")
+@click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="Key of --tls-cert (PEM), unless appended to it.")
 @click.option("--workers", default=2, show_default=True, type=click.IntRange(1, 256),
               help="LocalCluster worker processes (one thread each: Blender is not thread-safe).")
 @click.option("--body", default=None, help="Body of a DEM whose CRS does not say (earth, mars, moon, europa).")
@@ -37,7 +45,8 @@ log = logging.getLogger(__name__)
               help="Override any profile field, e.g. --set t4_presets=binary,clean --set frames=9 (repeatable; "
                    "fields in render_service/campaign/profiles.py).")
 @click.option("--no-progress", is_flag=True, help="No progress bars (logs only).")
-def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str | None, workers: int,
+def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str | None, tls_ca_file: Path | None,
+             tls_cert: Path | None, tls_key: Path | None, workers: int,
              body: str | None, min_relief_deg: float | None, poses: int | None, acquisitions: int | None,
              pano_width: int | None, samples: int | None, settings: tuple[str, ...], no_progress: bool) -> None:
     """Run (or resume) the report's test campaign (tables 4-8) end to end from rendered images.
@@ -48,6 +57,16 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
     from render_service.campaign import CampaignOptions, run_campaign  # noqa: PLC0415
     from render_service.campaign.profiles import parse_setting  # noqa: PLC0415
 
+    from render_service.engine import security_from_files  # noqa: PLC0415
+
+    security = None
+    if tls_ca_file or tls_cert or tls_key:
+        if not scheduler:
+            raise click.BadParameter("--tls-* options are for a --scheduler: the LocalCluster generates its own "
+                                     "credentials", param_hint="--tls-cert")
+        if not (tls_ca_file and tls_cert):
+            raise click.BadParameter("give --tls-ca-file and --tls-cert (and --tls-key)", param_hint="--tls-cert")
+        security = security_from_files(ca_file=tls_ca_file, cert_file=tls_cert, key_file=tls_key)
     overrides = dict(parse_setting(s) for s in settings)
     overrides |= {"n_poses": poses, "n_acquisitions": acquisitions, "pano_width": pano_width, "samples": samples}
     if poses is not None:
@@ -55,7 +74,7 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
     run_campaign(CampaignOptions(out=out, dem=dem, profile=profile_name, seed=seed, scheduler=scheduler,
                                  workers=workers, body=body, min_relief_deg=min_relief_deg,
                                  overrides={k: v for k, v in overrides.items() if v is not None},
-                                 progress=not no_progress))
+                                 progress=not no_progress, security=security))
     click.echo(f"results: {out / 'results.csv'}, {out / 'summary.json'}, {out / 'report.html'}")
 
 

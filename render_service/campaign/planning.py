@@ -68,7 +68,8 @@ class Case:
 
     kind : "panorama" (render + extract + locate), "acquisition" (NavCam frames + panorama building
         + extract + locate), "window" (a window database around a prior + locate the skyline of
-        ``source``), "heading" (heading-only mode on the skyline of ``source``)
+        ``source``), "heading" (heading-only mode on the skyline of ``source``), "lost_large"
+        (lost in space over the profile's large area, on the skyline of ``source``)
     source : case_id whose extracted skyline this case reuses (window and heading cases)
     """
 
@@ -186,6 +187,12 @@ def plan_cases(profile: Profile, n_poses: int) -> list[Case]:
             for d in profile.heading_offsets_m:
                 cases.append(Case(f"t8-{preset}-d{d:04.1f}-p{k:02d}", "8", "heading", preset, k, mode="heading",
                                   source=f"t4-{preset}-p{k:02d}", prior_offset_m=float(d)))
+    if profile.large_area_m > 0:
+        for k in range(n_poses):
+            for preset in profile.t4_presets:
+                cases.append(Case(f"t4L-{preset}-p{k:02d}", "4L", "lost_large", preset, k,
+                                  source=f"t4-{preset}-p{k:02d}",
+                                  extra={"area_m": float(profile.large_area_m)}))
     ids = [c.case_id for c in cases]
     if len(set(ids)) != len(ids):
         raise AssertionError("duplicate case ids")  # a programming error, not bad input

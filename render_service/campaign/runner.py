@@ -66,6 +66,7 @@ class CampaignOptions:
     overrides: dict = field(default_factory=dict)
     progress: bool = True
     say: object = None  # callable(str) for the terminal lines; None: print to stdout
+    security: object = None  # distributed.security.Security for --scheduler (None: generated / Dask config)
 
 
 def _say_default(msg: str) -> None:
@@ -139,8 +140,14 @@ def run_campaign(opt: CampaignOptions) -> dict:
     info = dem_info(dem_path, body=opt.body)
     say(f"campaign {profile.name}: DEM {spec} ({info.body.name}, {info.size[0]} x {info.size[1]} cells of "
         f"{info.cell_m:g} m, sha256 {info.sha256[:12]}), seed {opt.seed} -> {out}")
+    if profile.robustness:
+        raise InvalidInputError("the robustness sets of the full profile (scenes/robustness.toml) are not wired into "
+                                "the campaign yet: run `skyloc sim dataset scenes/robustness.toml` and locate its "
+                                "acquisitions, or use --set robustness=false for the 7 x 7 km part of full")
     site = planning.choose_site(profile, info.bounds,
-                                np.random.default_rng(np.random.SeedSequence([int(opt.seed) & 0xFFFFFFFF, 0x5173])))
+                                np.random.default_rng(np.random.SeedSequence([int(opt.seed) & 0xFFFFFFFF, 0x5173])),
+                                area_m=max(profile.area_m, profile.large_area_m))
+    site = planning.Site(site.center_x, site.center_y, profile.area_m, site.step_m, site.dem_bounds)
     say(f"  site: {profile.area_m:g} x {profile.area_m:g} m at {profile.step_m:g} m centred on "
         f"({site.center_x:.1f}, {site.center_y:.1f}) (metres, the DEM's metric CRS)")
 
@@ -150,7 +157,7 @@ def run_campaign(opt: CampaignOptions) -> dict:
     harness_errors: list[str] = []
     mem_workers_mb: list[float] = []
     cpu_workers_s = 0.0
-    with dask_client(opt.scheduler, n_workers=opt.workers, threads_per_worker=1) as client:
+    with dask_client(opt.scheduler, n_workers=opt.workers, threads_per_worker=1, security=opt.security) as client:
         n_w = max(1, len(client.scheduler_info(n_workers=-1)["workers"]) if opt.scheduler else opt.workers)
         client.register_plugin(TerrainPlugin(numba_threads=max(1, (os.cpu_count() or 1) // n_w)))
         ctx, db = _prepare(client, opt, profile, out, dem_path, spec, info, site, say)
@@ -219,47 +226,59 @@ def _versions() -> dict:
 
 
 def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str, info, site, say):
-    """Terrains and the lost-in-space database (resumed tile by tile)."""
+    """Terrains (the database's and the 0.1-degree truth's) and the lost-in-space database(s), on Dask."""
     from board.conventions import body_from_name  # noqa: PLC0415
+    from board.skydb import SkyDB  # noqa: PLC0415
+    from render_service.campaign.tasks import terrain_task  # noqa: PLC0415
+
+    h = profile.camera_height_m
+    center = (site.center_x, site.center_y)
+    tdir, truth_dir = out / "terrain" / "db", out / "terrain" / "truth"
+    (out / "terrain").mkdir(parents=True, exist_ok=True)
+    f_tr = client.submit(terrain_task, str(dem_path), center, profile.area_m, profile.step_m, TRUTH_N_AZIMUTH, h,
+                         str(truth_dir), pure=False)
+    db_path = _render_db(client, opt, out / "db.zarr", tdir, dem_path, spec, center, profile.area_m, profile.step_m,
+                         h, say)
+    f_tr.result()
+    large = ""
+    if profile.large_area_m > 0:
+        large = str(_render_db(client, opt, out / "db_large.zarr", out / "terrain" / "db_large", dem_path, spec,
+                               center, profile.large_area_m, profile.step_m, h, say))
+    body = body_from_name(opt.body) if opt.body else info.body
+    ctx = CampaignContext(out_dir=str(out), dem_path=str(dem_path), dem_spec=spec, body=body.name,
+                          site_xy=center, sim_half_m=profile.area_m / 2, db_path=str(db_path),
+                          terrain_dir=str(tdir), truth_az_deg=None, profile=profile.to_dict(), n_azimuth=360,
+                          camera_height_m=h, large_db_path=large)
+    return ctx, SkyDB.open(db_path)
+
+
+def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str, center, size_m: float,
+               step_m: float, h: float, say) -> Path:
+    """A lost-in-space database of ``size_m`` (terrain and tiles on Dask, resumed tile by tile)."""
     from board.skydb import SkyDBWriter  # noqa: PLC0415
     from render_service.campaign.tasks import db_tile_task, terrain_task  # noqa: PLC0415
     from render_service.dbrender import prepare_job  # noqa: PLC0415
     from render_service.renderers.base import RenderSpec  # noqa: PLC0415
 
     t0 = time.perf_counter()
-    h = profile.camera_height_m
-    center = (site.center_x, site.center_y)
-    tdir, truth_dir = out / "terrain" / "db", out / "terrain" / "truth"
-    (out / "terrain").mkdir(parents=True, exist_ok=True)
-    f_db = client.submit(terrain_task, str(dem_path), center, profile.area_m, profile.step_m, 360, h, str(tdir),
-                         pure=False)
-    f_tr = client.submit(terrain_task, str(dem_path), center, profile.area_m, profile.step_m, TRUTH_N_AZIMUTH, h,
-                         str(truth_dir), pure=False)
-    f_db.result(), f_tr.result()
-    job = prepare_job(dem_path, center_xy=center, size_m=profile.area_m, step_m=profile.step_m,
+    client.submit(terrain_task, str(dem_path), center, size_m, step_m, 360, h, str(tdir), pure=False).result()
+    job = prepare_job(dem_path, center_xy=center, size_m=size_m, step_m=step_m,
                       spec=RenderSpec(camera_height_m=h, n_azimuth=360), body=opt.body)
     job.meta.extra.pop("dem_path", None)
     job.meta.extra["dem"] = spec
-    db_path = out / "db.zarr"
     writer = SkyDBWriter.create(db_path, job.meta)
     pending = writer.pending_tiles()
-    n_tiles = len(writer.tiles)
     if pending:
         futs = client.map(db_tile_task, [str(db_path)] * len(pending), [str(tdir)] * len(pending), pending,
                           [job.spec] * len(pending), pure=False)
-        _progress(client, futs, f"database ({n_tiles} tiles)", opt.progress, initial=n_tiles - len(pending),
-                  total=n_tiles)
+        _progress(client, futs, f"{db_path.name} ({len(writer.tiles)} tiles)", opt.progress,
+                  initial=len(writer.tiles) - len(pending), total=len(writer.tiles))
         for f in futs:
             f.result()
-    db = writer.finalize()
-    say(f"  database {db_path.name}: {job.grid.nx} x {job.grid.ny} positions, {len(pending)} of {n_tiles} tiles "
-        f"rendered now, {time.perf_counter() - t0:.1f} s")
-    body = body_from_name(opt.body) if opt.body else info.body
-    ctx = CampaignContext(out_dir=str(out), dem_path=str(dem_path), dem_spec=spec, body=body.name,
-                          site_xy=center, sim_half_m=profile.area_m / 2, db_path=str(db_path),
-                          terrain_dir=str(tdir), truth_az_deg=None, profile=profile.to_dict(), n_azimuth=360,
-                          camera_height_m=h)
-    return ctx, db
+    writer.finalize()
+    say(f"  database {db_path.name}: {job.grid.nx} x {job.grid.ny} positions, {len(pending)} tiles rendered now, "
+        f"{time.perf_counter() - t0:.1f} s")
+    return db_path
 
 
 def _poses(client, opt, profile: Profile, out: Path, site, ctx, say):
@@ -340,7 +359,7 @@ def _run_cases(client, ctx: CampaignContext, cases, poses, truths, opt, say) -> 
     for c in order:
         dep = futures.get(c.source) if c.source else None
         # heavy renders first (acquisitions), then panoramas, then the quick window / heading cases
-        prio = {"acquisition": 30, "panorama": 20, "window": 10, "heading": 0}[c.kind]
+        prio = {"acquisition": 30, "panorama": 20, "window": 10, "lost_large": 5, "heading": 0}[c.kind]
         futures[c.case_id] = client.submit(case_task, ctx, c.to_dict(), poses[c.pose], truths[c.pose], dep,
                                            key=f"case-{c.case_id}-{os.getpid()}", priority=prio, pure=False)
     errors: list[str] = []

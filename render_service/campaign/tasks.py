@@ -48,6 +48,7 @@ class CampaignContext:
     profile: dict
     n_azimuth: int
     camera_height_m: float
+    large_db_path: str = ""
 
 
 def _publish_dir(tmp: Path, out: Path) -> None:
@@ -274,6 +275,8 @@ def _locate(ctx: CampaignContext, c, cd, prof, st, folder: Path) -> None:
         t0 = time.perf_counter()
         fix = locate(db, st.skyline, mode="lost")
         fix.mode = "window"
+    elif c.kind == "lost_large":
+        fix = locate(ctx.large_db_path, st.skyline, mode="lost")
     elif c.kind == "heading":
         hp = cd.heading_deg + cd.heading_prior_offset_deg * prof.heading_window_deg
         st.heading_prior_deg = hp

@@ -1,0 +1,288 @@
+"""``skyloc campaign``: planning from the seed, scoring against the truth, and the whole chain on Dask + Blender.
+
+The end-to-end tests run a reduced ``ci`` profile on a small procedural site (real Blender renders,
+real Dask LocalCluster, real extraction and matching) and check that the rows are consistent with
+the manifests the simulator wrote, not that the numbers are good.  The resume test kills a run
+with SIGKILL and checks that the resumed run equals an uninterrupted one and recomputed nothing.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from board.errors import InvalidInputError
+from render_service.campaign import planning, scoring, summary
+from render_service.campaign.profiles import get_profile, parse_setting
+
+# --------------------------------------------------------------------------------------------
+# planning (no Dask, no Blender)
+# --------------------------------------------------------------------------------------------
+
+
+def _site(profile, bounds=(0.0, 0.0, 8000.0, 8000.0), seed=3):
+    return planning.choose_site(profile, bounds, np.random.default_rng(seed))
+
+
+def test_poses_are_off_the_grid_inside_the_area_and_seeded():
+    prof = get_profile("ci")
+    site = _site(prof)
+    cands = [planning.draw_candidate(11, i, site, prof) for i in range(400)]
+    half = planning.pose_half_m(prof)
+    for c in cands:
+        # brute force: distance to every node line of the grid, in steps
+        nodes = site.center_x + np.arange(-60, 61) * site.step_m
+        dx = np.min(np.abs(c.x - nodes)) / site.step_m
+        nodes_y = site.center_y + np.arange(-60, 61) * site.step_m
+        dy = np.min(np.abs(c.y - nodes_y)) / site.step_m
+        assert min(dx, dy) >= planning.OFF_GRID_MARGIN - 1e-9
+        assert abs(c.x - site.center_x) <= half + site.step_m and abs(c.y - site.center_y) <= half + site.step_m
+        assert 0 <= c.heading_deg < 360 and planning.SUN_ELEVATION_DEG[0] <= c.sun_elevation_deg <= 60
+    # the i-th candidate does not depend on the others, and another seed draws other poses
+    assert planning.draw_candidate(11, 250, site, prof) == cands[250]
+    assert planning.draw_candidate(12, 250, site, prof) != cands[250]
+    # headings and positions are spread, not a fixed list
+    assert np.std([c.heading_deg for c in cands]) > 80
+    assert len({round(c.x, 3) for c in cands}) == len(cands)
+
+
+def test_site_inside_the_dem_with_margin_and_refused_when_too_small():
+    prof = get_profile("report")
+    bounds = (1000.0, -5000.0, 21000.0, 15000.0)
+    margin = max(300.0, 0.15 * 20000.0)
+    centres = []
+    for seed in range(20):
+        s = _site(prof, bounds, seed)
+        tol = prof.step_m / 2 + 1e-6  # the centre is snapped to the step
+        assert bounds[0] + margin + 500 - tol <= s.center_x <= bounds[2] - margin - 500 + tol
+        assert bounds[1] + margin + 500 - tol <= s.center_y <= bounds[3] - margin - 500 + tol
+        centres.append((s.center_x, s.center_y))
+    assert len(set(centres)) > 10  # drawn, not fixed
+    with pytest.raises(InvalidInputError, match="too small"):
+        _site(prof, (0.0, 0.0, 1200.0, 1200.0))
+
+
+def test_case_plan_covers_the_tables_and_reuses_existing_sources():
+    prof = get_profile("report", n_poses=3, n_window_poses=3, n_heading_poses=2, n_acquisitions=2)
+    cases = planning.plan_cases(prof, 3)
+    tables = {c.table for c in cases}
+    assert tables == {"4", "5", "6", "7", "8"}
+    ids = {c.case_id for c in cases}
+    assert len(ids) == len(cases)
+    assert sum(c.table == "4" for c in cases) == 3 * len(prof.t4_presets)
+    assert sum(c.table == "5" for c in cases) == 3 * len(prof.t5_presets) * 2
+    assert sum(c.table == "8" for c in cases) == 2 * len(prof.heading_presets) * len(prof.heading_offsets_m)
+    assert all(c.source in ids for c in cases if c.source)
+    with pytest.raises(InvalidInputError, match="t4_presets"):
+        planning.plan_cases(get_profile("ci", t4_presets=("clean",), window_presets=("binary",)), 1)
+
+
+def test_profile_settings_are_typed_and_checked():
+    assert parse_setting("t4_presets=binary, clean") == ("t4_presets", ("binary", "clean"))
+    assert parse_setting("heading_offsets_m=0,2.5") == ("heading_offsets_m", (0.0, 2.5))
+    assert parse_setting("frames=7") == ("frames", 7)
+    for bad in ("frames", "nosuch=1", "frames=seven", "robustness=maybe"):
+        with pytest.raises(InvalidInputError):
+            parse_setting(bad)
+    with pytest.raises(InvalidInputError, match="unknown look"):
+        get_profile("ci", t5_presets=("sepia",))
+    with pytest.raises(InvalidInputError, match="unknown campaign profile"):
+        get_profile("huge")
+
+
+def test_relief_and_off_grid_distance():
+    el = np.concatenate([np.zeros(100), np.linspace(0, 10, 100)])
+    assert planning.horizon_relief_deg(el) == pytest.approx(np.percentile(el, 98) - np.percentile(el, 2))
+    assert planning.horizon_relief_deg(np.full(50, np.nan)) == 0.0
+    site = planning.Site(100.0, 200.0, 400.0, 10.0, (0, 0, 1, 1))
+    assert planning.off_grid_distance_steps(103.0, 207.5, site) == pytest.approx(0.25)
+
+
+# --------------------------------------------------------------------------------------------
+# scoring against the truth
+# --------------------------------------------------------------------------------------------
+
+
+def test_extraction_errors_against_a_known_truth():
+    truth = np.linspace(0, 5, 360)
+    ext = truth.copy()
+    ext[:40] = np.nan                      # 40 azimuths masked
+    ext[100:103] += 2.0                    # 3 wrong kept columns
+    ext[200:300] += 0.05
+    e = scoring.extraction_errors(ext, truth, 1.0)
+    assert e["kept_deg"] == 320 and e["kept_fraction"] == pytest.approx(320 / 360)
+    assert e["n_gt1deg"] == 3 and e["extract_frac_gt1deg"] == pytest.approx(3 / 320)
+    assert e["extract_median_abs_err_deg"] == pytest.approx(0.0)
+
+
+def test_true_skyline_of_a_level_mast_is_the_horizon_shifted_by_the_heading():
+    az = np.arange(3600) * 0.1
+    el = 3 + 2 * np.sin(np.radians(az)) + np.cos(np.radians(3 * az))
+    sky = scoring.true_skyline(el, heading_deg=40.0, pitch_deg=0.0, roll_deg=0.0, n_azimuth=360)
+    expect = 3 + 2 * np.sin(np.radians(np.arange(360) + 40.0)) + np.cos(np.radians(3 * (np.arange(360) + 40.0)))
+    assert np.max(np.abs(sky - expect)) < 2e-3
+    tilted = scoring.true_skyline(el, heading_deg=40.0, pitch_deg=10.0, roll_deg=0.0, n_azimuth=360)
+    # pitching the mast up by 10 degrees lowers the skyline ahead by about 10 degrees and raises it behind
+    assert tilted[0] == pytest.approx(expect[0] - 10.0, abs=0.3)
+    assert tilted[180] == pytest.approx(expect[180] + 10.0, abs=0.3)
+
+
+class _Fix:
+    def __init__(self, x, y, h, status="ok"):
+        self.x, self.y, self.heading_deg, self.pitch_deg, self.roll_deg = x, y, h, 0.0, 0.0
+        self.status, self.reason = status, "" if status == "ok" else "another place fits"
+        self.sigma_x_m = self.sigma_y_m = 1.0
+        self.sigma_heading_deg = 0.1
+        self.ellipse95_m = (2.45, 2.45, 0.0)
+
+
+class _Ctx:
+    dem_spec = "procedural:mars:1"
+    site_xy = (0.0, 0.0)
+    profile = get_profile("ci").to_dict()
+
+
+def _row(fix, table="4"):
+    case = planning.Case("t-x", table, "panorama", "binary", 0).to_dict()
+    cand = dict(planning.draw_candidate(0, 0, planning.Site(0, 0, 400, 10, (0, 0, 1, 1)), get_profile("ci")).to_dict())
+    st = scoring.CaseOutcome(case=case, cand=cand, fix=fix)
+    return scoring.make_row(_Ctx(), st, np.zeros(3600)), cand
+
+
+def test_rows_score_the_fix_against_the_truth_and_flag_wrong_ok():
+    right, cand = _row(_Fix(0, 0, 0))
+    fix = _Fix(cand["x"] + 3.0, cand["y"] - 4.0, cand["heading_deg"] + 359.5)
+    row, _ = _row(fix)
+    assert row["error_m"] == pytest.approx(5.0) and row["heading_error_deg"] == pytest.approx(0.5)
+    assert row["wrong"] == 0 and row["wrong_ok"] == 0 and row["right_flagged"] == 0
+    far, _ = _row(_Fix(cand["x"] + 30.0, cand["y"], cand["heading_deg"]))
+    assert far["wrong"] == 1 and far["wrong_ok"] == 1
+    flagged, _ = _row(_Fix(cand["x"] + 30.0, cand["y"], cand["heading_deg"], status="ambiguous"))
+    assert flagged["wrong"] == 1 and flagged["wrong_ok"] == 0 and flagged["reason"].startswith("locate:")
+    none, _ = _row(None)
+    assert none["status"] == "no_fix" and none["error_m"] == ""
+    agg = summary.aggregate([row, far, flagged, none])
+    assert agg["cases"] == 4 and agg["wrong"] == 2 and agg["wrong_ok"] == 1
+    assert agg["wrong_flagged_share"] == 0.5 and agg["status"] == {"ambiguous": 1, "no_fix": 1, "ok": 2}
+    assert agg["error_m"]["n"] == 3 and agg["error_m"]["max"] == pytest.approx(30.0)
+
+
+# --------------------------------------------------------------------------------------------
+# the whole chain (Blender + Dask)
+# --------------------------------------------------------------------------------------------
+
+#: A reduced ci profile: every table, the fewest renders.
+SETTINGS = ["t4_presets=binary,clean", "t5_presets=binary", "window_presets=binary", "heading_presets=binary",
+            "heading_offsets_m=0,20", "frames=7", "camera_width=128", "pano_width=480", "samples=1",
+            "window_step_m=4", "acq_preset=binary"]
+ARGS = ["--profile", "ci", "--seed", "5", "--poses", "2", "--acquisitions", "1", "--workers", "2", "--no-progress",
+        *[a for s in SETTINGS for a in ("--set", s)]]
+
+
+def _cli(out: Path, **kw) -> subprocess.Popen:
+    env = dict(os.environ)
+    return subprocess.Popen([sys.executable, "-m", "skyloc.cli", "campaign", "--out", str(out), *ARGS], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **kw)
+
+
+def _rows(out: Path) -> list[dict]:
+    with (out / "results.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def campaign_run(tmp_path_factory):
+    pytest.importorskip("bpy")
+    out = tmp_path_factory.mktemp("campaign") / "run"
+    p = _cli(out)
+    log, _ = p.communicate(timeout=900)
+    assert p.returncode == 0, log
+    return out, log
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
+    out, log = campaign_run
+    rows = _rows(out)
+    plan = json.loads((out / "poses.json").read_text())
+    prof = get_profile("ci", **dict(parse_setting(s) for s in SETTINGS), n_poses=2, n_acquisitions=1,
+                       n_window_poses=2, n_heading_poses=2)
+    cases = planning.plan_cases(prof, len(plan["accepted"]))
+    assert [r["case_id"] for r in rows] == [c.case_id for c in cases]
+    assert set(scoring.COLUMNS[:24]) <= set(rows[0])
+    assert {r["table"] for r in rows} == {"4", "5", "6", "7", "8"}
+    for r in rows:
+        folder = out / "cases" / r["case_id"]
+        if r["kind"] in ("panorama", "acquisition"):
+            manifest = folder / r["kind"] / f"{r['kind']}.json"
+            truth = json.loads(manifest.read_text())["truth"]
+            assert float(r["true_x"]) == pytest.approx(truth["x"], abs=1e-3)
+            assert float(r["true_y"]) == pytest.approx(truth["y"], abs=1e-3)
+            assert float(r["true_heading_deg"]) == pytest.approx(truth["heading_deg"], abs=1e-3)
+            assert float(r["pitch_deg"]) == pytest.approx(truth.get("pitch_deg", 0.0), abs=1e-6)
+            assert float(r["off_grid_steps"]) >= planning.OFF_GRID_MARGIN - 1e-3
+        if r["error_m"] != "":
+            e = math.hypot(float(r["fix_x"]) - float(r["true_x"]), float(r["fix_y"]) - float(r["true_y"]))
+            assert float(r["error_m"]) == pytest.approx(e, abs=2e-3)
+            assert r["status"] in ("ok", "ambiguous", "failed")
+            assert r["wrong"] == str(int(e > scoring.WRONG_M or float(r["heading_error_deg"]) > scoring.WRONG_HEADING_DEG))
+        else:
+            assert r["status"] == "no_fix" and r["reason"]
+        if r["table"] == "5":
+            assert abs(float(r["pitch_deg"])) + abs(float(r["roll_deg"])) == pytest.approx(10.0)
+    summ = json.loads((out / "summary.json").read_text())
+    assert summ["campaign"]["rows"] == len(rows) and summ["campaign"]["seed"] == 5
+    assert sum(g["cases"] for g in summ["tables"].values()) == len(rows)
+    assert summ["run"]["peak_rss_mb_main"] > 0 and summ["campaign"]["dem_sha256"]
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 3 and "reference report" in html
+    assert "cases" in log and "4/binary" in log  # the one-screen summary
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_killed_campaign_resumes_to_the_same_results_without_recomputing(campaign_run, tmp_path):
+    ref, _ = campaign_run
+    out = tmp_path / "run"
+    p = _cli(out)
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline and p.poll() is None:
+        if len(list((out / "cases").glob("*/row.json"))) >= 3:
+            break
+        time.sleep(0.5)
+    assert p.poll() is None, "the campaign ended before it could be killed"
+    os.killpg(p.pid, signal.SIGKILL)
+    p.wait(timeout=30)
+    finished = {f.parent.name: f.stat().st_mtime_ns for f in (out / "cases").glob("*/row.json")}
+    assert finished and not (out / "results.csv").exists()
+    p = _cli(out)
+    log, _ = p.communicate(timeout=900)
+    assert p.returncode == 0, log
+    assert f"{len(finished)} finished before" in log
+    for cid, mtime in finished.items():  # nothing that finished was recomputed
+        assert (out / "cases" / cid / "row.json").stat().st_mtime_ns == mtime
+    a, b = _rows(ref), _rows(out)
+    drop = set(scoring.TIME_COLUMNS)
+    assert [{k: v for k, v in r.items() if k not in drop} for r in a] == \
+           [{k: v for k, v in r.items() if k not in drop} for r in b]
+
+
+def test_resuming_with_other_arguments_is_refused(tmp_path):
+    from render_service.campaign.runner import CampaignOptions, _check_arguments
+
+    out = tmp_path / "c"
+    _check_arguments(out, {"seed": 1, "dem": "x"})
+    _check_arguments(out, {"seed": 1, "dem": "x"})  # same arguments: resumes
+    with pytest.raises(InvalidInputError, match="seed differ"):
+        _check_arguments(out, {"seed": 2, "dem": "x"})
+    assert CampaignOptions(out=out).profile == "ci"
