@@ -6,7 +6,7 @@ export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
 .PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
-	detector-labels bench-detector \
+	detector-labels bench-detector campaign campaign-ci \
 	image image-smoke multinode-smoke
 
 install:
@@ -20,6 +20,17 @@ test-fast: install
 
 demo: install
 	$(PY) -m skyloc.demo
+
+# the report's test campaign (tables 4-8) end to end; DEM=file|procedural:PRESET:SEED, PROFILE=ci|report|full
+DEM ?= procedural:mars:7
+PROFILE ?= report
+SEED ?= 1
+CAMPAIGN_OUT ?= campaign_out/$(PROFILE)-seed$(SEED)
+campaign: install
+	$(VENV)/bin/skyloc campaign --dem "$(DEM)" --profile $(PROFILE) --seed $(SEED) --out "$(CAMPAIGN_OUT)" $(CAMPAIGN_ARGS)
+
+campaign-ci: install
+	$(VENV)/bin/skyloc campaign --profile ci --seed $(SEED) --out campaign_out/ci-seed$(SEED)
 
 bench: bench-db bench-match bench-extract bench-blender bench-service
 
@@ -59,4 +70,4 @@ multinode-smoke: install
 	$(PY) -m pytest -q -m service tests/render_service/test_multinode.py
 
 clean:
-	rm -rf .cache build *.egg-info demo_out
+	rm -rf .cache build *.egg-info demo_out campaign_out
