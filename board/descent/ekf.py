@@ -92,7 +92,8 @@ class FilterConfig:
     rho_min: float = 1e-4  # 1/m: 10 km
     xyz_switch: float = 0.1  # linearity index below which an inverse-depth landmark becomes XYZ
     altimeter_gate_chi2: float = 6.63  # 1 dof, 99 %
-    altimeter_facet_rel_sigma: float = 0.01  # facet (non-planar terrain) model error, fraction of the range
+    altimeter_facet_rel_sigma: float = 0.01  # facet model error, fraction of the range ...
+    altimeter_facet_edge_sigma: float = 0.05  # ... plus this fraction of the facet's mean edge (terrain relief)
     facet_max_rel_depth_sigma: float = 0.1  # landmarks used for a facet: depth sigma / depth below this
     extra: dict = field(default_factory=dict)
 
@@ -345,7 +346,9 @@ class DescentEKF:
         H[0, 0:6] = Jx
         for lm, Jxyz, Jpt in ((l1, J1, Jk[0]), (l2, J2, Jk[1]), (l3, J3, Jk[2])):
             H[0, self.state_index(lm)] += Jpt @ Jxyz
-        var = sigma_m ** 2 + (self.cfg.altimeter_facet_rel_sigma * h) ** 2
+        edge = (np.linalg.norm(X2 - X1) + np.linalg.norm(X3 - X2) + np.linalg.norm(X1 - X3)) / 3.0
+        var = sigma_m ** 2 + (self.cfg.altimeter_facet_rel_sigma * h) ** 2 + (self.cfg.altimeter_facet_edge_sigma
+                                                                             * edge) ** 2
         R = np.array([[var]])
         r = np.array([range_m - h])
         S = float(H @ self.P @ H.T + var)

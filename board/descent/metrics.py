@@ -28,6 +28,34 @@ def _check(est: np.ndarray, gt: np.ndarray) -> None:
         raise InvalidInputError("estimate and ground truth times differ: associate them frame by frame first")
 
 
+def groundtruth_at(gt: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Ground-truth TUM rows at ``times`` (s): positions interpolated linearly, quaternions by normalised lerp.
+
+    ``gt`` may be denser than the frames (the simulator writes it at the IMU rate); times outside its
+    span are refused.
+    """
+    gt = np.asarray(gt, float)
+    times = np.asarray(times, float)
+    if times.min() < gt[0, 0] - 1e-6 or times.max() > gt[-1, 0] + 1e-6:
+        raise InvalidInputError(f"frame times {times.min():.3f}..{times.max():.3f} s lie outside the ground truth "
+                                f"({gt[0, 0]:.3f}..{gt[-1, 0]:.3f} s)")
+    j = np.clip(np.searchsorted(gt[:, 0], times, side="right") - 1, 0, len(gt) - 2) if len(gt) > 1 else \
+        np.zeros(len(times), int)
+    out = np.empty((len(times), 8))
+    out[:, 0] = times
+    if len(gt) == 1:
+        out[:, 1:] = gt[0, 1:]
+        return out
+    t0, t1 = gt[j, 0], gt[j + 1, 0]
+    w = np.clip((times - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)[:, None]
+    out[:, 1:4] = (1 - w) * gt[j, 1:4] + w * gt[j + 1, 1:4]
+    q0, q1 = gt[j, 4:8], gt[j + 1, 4:8]
+    q1 = np.where((np.sum(q0 * q1, axis=1) < 0)[:, None], -q1, q1)
+    q = (1 - w) * q0 + w * q1
+    out[:, 4:8] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return out
+
+
 def distance_travelled(gt: np.ndarray) -> np.ndarray:
     """Cumulative path length (m) along the ground-truth positions, 0 at the first row."""
     d = np.linalg.norm(np.diff(gt[:, 1:4], axis=0), axis=1)

@@ -62,6 +62,7 @@ class RunConfig:
     min_match_ratio: float = 0.5
     weighting: str = "diversity"
     use_altimeter: bool = True
+    imu_glitch_mps2: float = 100.0  # specific force beyond this (~8 g on Europa's lander) is a glitch
     filter: FilterConfig = field(default_factory=FilterConfig)
 
 
@@ -128,6 +129,23 @@ def pose_error(tum_est_row: np.ndarray, tum_true_row: np.ndarray) -> np.ndarray:
     return np.concatenate([tum_est_row[1:4] - tum_true_row[1:4], log_so3(Re.T @ Rt)])
 
 
+def _deglitch(imu: np.ndarray, limit_mps2: float) -> np.ndarray:
+    """IMU rows with physically impossible specific forces replaced by the nearest good sample (logged)."""
+    bad = np.linalg.norm(imu[:, 4:7], axis=1) > limit_mps2
+    if not bad.any():
+        return imu
+    if bad.all():
+        raise InvalidInputError(f"every IMU sample exceeds {limit_mps2} m/s2: check the accelerometer units (m/s2)")
+    good = np.flatnonzero(~bad)
+    out = imu.copy()
+    for i in np.flatnonzero(bad):
+        k = good[np.argmin(np.abs(good - i))]
+        out[i, 1:7] = imu[k, 1:7]
+    log.warning("%d IMU sample(s) above %.0f m/s2 replaced by their nearest good neighbour (first at t=%.3f s)",
+                int(bad.sum()), limit_mps2, float(imu[np.flatnonzero(bad)[0], 0]))
+    return out
+
+
 class DescentNavigator:
     """The filter with its feature tracking, frame by frame."""
 
@@ -142,6 +160,7 @@ class DescentNavigator:
         if missing:
             raise InvalidInputError(f"mode {mode} needs the {', '.join(missing)} camera, which this sequence lacks")
         self.rng = np.random.default_rng(seed)
+        self.imu = _deglitch(seq.imu, self.cfg.imu_glitch_mps2)
         x0, P0 = initial_state(seq.groundtruth, self.cfg, np.random.default_rng([seed, 7]))
         cams = {c: filter_camera(c, seq.cameras[c], self.cfg.sigma_px.get(c, 1.0)) for c in self.cam_names}
         self.ekf = DescentEKF(x0, P0, seq.gravity_w, _imu_noise(seq.meta), cams, self.cfg.filter)
@@ -156,7 +175,7 @@ class DescentNavigator:
     # -- altimeter and propagation --------------------------------------------------------------------
     def _advance(self, t1: float) -> None:
         alt = self.seq.altimeter
-        imu = self.seq.imu
+        imu = self.imu
         while self.alt_i < alt.shape[0] and alt[self.alt_i, 0] <= t1 + 1e-9:
             ta, rng_m, valid = alt[self.alt_i]
             self.alt_i += 1
