@@ -115,7 +115,8 @@ def cached_renderer(spec: str, res_m: float, size_m: float, lights: tuple[Light,
 def trial_motion(config: DescentConfig, terrain: DescentTerrain):
     xmin, ymin, xmax, ymax = terrain.bounds
     return make_motion(config.trajectory, config.trial, seed=config.seed, z_top=float(terrain.height.max()),
-                       centre_xy=((xmin + xmax) / 2, (ymin + ymax) / 2), duration_s=config.duration_s,
+                       centre_xy=((xmin + xmax) / 2, (ymin + ymax) / 2),
+                       scale_xy=min(xmax - xmin, ymax - ymin) / DEFAULT_SIZE_M, duration_s=config.duration_s,
                        noise_pos_m=config.noise_pos_m, noise_att_deg=config.noise_att_deg)
 
 

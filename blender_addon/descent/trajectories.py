@@ -4,7 +4,7 @@ A trajectory gives the body's position (world, m) and attitude (heading clockwis
 nose-up, roll right-side-down, degrees: :func:`board.conventions.rotation_enu_from_camera` with the
 body frame x forward, y left, z up) as smooth functions of time.  Heights are above the terrain's
 highest point (``z_top``), so every trajectory clears the terrain; horizontal positions are relative
-to the terrain's centre.  The memorandum's set: two linear motions, S-shapes, a half-ellipse and
+to the terrain's centre and drawn for a 400 m terrain (scaled with ``scale_xy`` for other sizes).  The memorandum's set: two linear motions, S-shapes, a half-ellipse and
 half-circles (its curved paths "do not necessarily represent feasible descent trajectories"), plus a
 vertical descent, a wobbling linear and a spiral.  Each trial adds the memorandum's additive Gaussian
 actuation noise as a smooth perturbation: per axis a sum of sinusoids with Gaussian amplitudes
@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from board.conventions import az_from_en_deg, rotation_enu_from_camera
+from board.conventions import az_from_en_deg
 from board.errors import InvalidInputError
 
 DEFAULT_DURATION_S = 200.0
@@ -109,6 +109,22 @@ def trajectory_spec(trajectory_id: int) -> TrajectorySpec:
     return TRAJECTORIES[int(trajectory_id)]
 
 
+def rotations_enu_from_body(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
+    """(n, 3, 3) body -> ENU rotations: :func:`board.conventions.rotation_enu_from_camera` for arrays of angles.
+
+    The same composition Rz(heading) Ry(pitch) Rx(roll) in the conventions' sign choices, vectorised
+    (a trajectory needs ~10^5 of them); tests/descent/test_sim_imu.py checks it against the scalar one.
+    """
+    h, p, r = (np.radians(np.asarray(a, dtype=np.float64)) for a in (heading_deg, pitch_deg, roll_deg))
+    n = np.broadcast(h, p, r).shape
+    zero, one = np.zeros(n), np.ones(n)
+    sh, ch, sp, cp, sr, cr = np.sin(h), np.cos(h), np.sin(p), np.cos(p), np.sin(r), np.cos(r)
+    R_h = np.stack([np.stack([sh, -ch, zero], -1), np.stack([ch, sh, zero], -1), np.stack([zero, zero, one], -1)], -2)
+    R_p = np.stack([np.stack([cp, zero, -sp], -1), np.stack([zero, one, zero], -1), np.stack([sp, zero, cp], -1)], -2)
+    R_r = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, cr, -sr], -1), np.stack([zero, sr, cr], -1)], -2)
+    return R_h @ R_p @ R_r
+
+
 @dataclass(frozen=True)
 class _Sines:
     """Sum of sinusoids per axis: amp (axes, k), freq (axes, k) Hz, phase (axes, k) rad."""
@@ -136,14 +152,17 @@ class Motion:
     duration_s: float
     z_top: float
     centre_xy: tuple[float, float] = (0.0, 0.0)
+    scale_xy: float = 1.0
     noise_pos: _Sines | None = None
     noise_att: _Sines | None = None
     _track_heading: Callable | None = field(default=None, repr=False)
 
     def _nominal(self, t):
-        s = np.clip(np.asarray(t, dtype=np.float64) / self.duration_s, 0.0, 1.0)
+        s = np.asarray(t, dtype=np.float64) / self.duration_s      # not clipped: smooth through t = 0 and the end
         x, y, h = self.spec.path(s)
-        return np.stack(np.broadcast_arrays(x + self.centre_xy[0], y + self.centre_xy[1], h + self.z_top), axis=-1)
+        k = self.scale_xy
+        return np.stack(np.broadcast_arrays(k * x + self.centre_xy[0], k * y + self.centre_xy[1], h + self.z_top),
+                        axis=-1)
 
     def position(self, t) -> np.ndarray:
         """(n, 3) body origin in the world, m."""
@@ -155,7 +174,7 @@ class Motion:
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         if self.spec.heading == "track":
             h = 1e-3
-            dp = self._nominal(np.clip(t + h, 0, self.duration_s)) - self._nominal(np.clip(t - h, 0, self.duration_s))
+            dp = self._nominal(t + h) - self._nominal(t - h)
             heading = az_from_en_deg(dp[..., 0], dp[..., 1])
             heading = np.degrees(np.unwrap(np.radians(heading)))
         else:
@@ -168,7 +187,8 @@ class Motion:
 
     def rotation(self, t) -> np.ndarray:
         """(n, 3, 3) R_world_body."""
-        return np.stack([rotation_enu_from_camera(*a) for a in self.angles_deg(t)])
+        a = self.angles_deg(t)
+        return rotations_enu_from_body(a[:, 0], a[:, 1], a[:, 2])
 
     def velocity(self, t, h: float = 1e-3) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
@@ -190,13 +210,17 @@ class Motion:
 
 
 def make_motion(trajectory_id: int, trial: int, *, seed: int = 0, z_top: float, centre_xy=(0.0, 0.0),
-                duration_s: float = DEFAULT_DURATION_S, noise_pos_m: float = 2.0,
+                scale_xy: float = 1.0, duration_s: float = DEFAULT_DURATION_S, noise_pos_m: float = 2.0,
                 noise_att_deg: float = 1.0) -> Motion:
-    """The motion of ``trajectory_id`` in ``trial`` (noise drawn from (seed, trajectory, trial))."""
+    """The motion of ``trajectory_id`` in ``trial`` (noise drawn from (seed, trajectory, trial)).
+
+    scale_xy : horizontal scale of the path (the paths are drawn for the memorandum's 400 m terrain;
+    ``terrain side / 400`` keeps them over a smaller or larger one).
+    """
     spec = trajectory_spec(trajectory_id)
     if duration_s <= 0:
         raise InvalidInputError(f"duration {duration_s} s must be positive")
     rng = np.random.Generator(np.random.PCG64([int(seed), int(trajectory_id), int(trial), 1414]))
     npos = _draw_sines(rng, 3, 4, noise_pos_m, 0.004, 0.03) if noise_pos_m > 0 else None
     natt = _draw_sines(rng, 3, 4, noise_att_deg, 0.01, 0.1) if noise_att_deg > 0 else None
-    return Motion(spec, float(duration_s), float(z_top), tuple(centre_xy), npos, natt)
+    return Motion(spec, float(duration_s), float(z_top), tuple(centre_xy), float(scale_xy), npos, natt)
