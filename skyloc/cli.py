@@ -20,6 +20,8 @@ PLUGIN_MODULES = (
     "blender_addon.cli_dem",      # skyloc dem synth|prepare
     "blender_addon.cli_sim",      # skyloc sim panorama
     "blender_addon.cli_sim_acquire",  # skyloc sim acquire|dataset (adds to the sim group)
+    "blender_addon.cli_descent",  # skyloc sim descent (adds to the sim group)
+    "render_service.cli_descent_set",  # skyloc sim descent-set (Dask)
     "render_service.cli_db",      # skyloc db render|info|horizon
     "render_service.cli_serve",   # skyloc serve
     "render_service.cli_campaign",  # skyloc campaign
