@@ -21,7 +21,6 @@ from render_service import __version__
 from render_service.api.deps import require_token
 from render_service.api.docs import install_local_docs
 from render_service.api.routes import dems, health, jobs, ui
-from render_service.schemas import ErrorOut
 from render_service.security import TokenAuth, TokenGateMiddleware, check_startup, load_token
 from render_service.settings import ServiceSettings
 from render_service.storage import DataDirLock, StorageMonitor, check_data_dir, is_storage_error, storage_reason
@@ -35,12 +34,13 @@ _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "
                409: "conflict", 410: "gone", 413: "too_large", 415: "unsupported_media_type",
                416: "range_not_satisfiable", 422: "invalid_input", 501: "not_available", 503: "storage_unavailable"}
 #: Answers every route can give (documented in the OpenAPI schema of each operation).
+_ERROR_JSON = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorOut"}}}  # JSON on every route
 _COMMON_RESPONSES = {
-    400: {"model": ErrorOut, "description": "Malformed request (unparsable multipart body)"},
-    404: {"model": ErrorOut, "description": "No such route or resource"},
-    405: {"model": ErrorOut, "description": "Method not allowed on this route"},
-    413: {"model": ErrorOut, "description": "Request body too large"},
-    503: {"model": ErrorOut, "description": "The server's data directory does not take writes (full, read-only)"},
+    400: {"content": _ERROR_JSON, "description": "Malformed request (unparsable multipart body)"},
+    404: {"content": _ERROR_JSON, "description": "No such route or resource"},
+    405: {"content": _ERROR_JSON, "description": "Method not allowed on this route"},
+    413: {"content": _ERROR_JSON, "description": "Request body too large"},
+    503: {"content": _ERROR_JSON, "description": "The server's data directory does not take writes (full, read-only)"},
 }
 
 

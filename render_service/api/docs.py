@@ -28,7 +28,8 @@ def assets_dir() -> Path:
         raise SkylocError("the API documentation needs the fastapi-offline package: pip install fastapi-offline "
                           "(it is in skyloc's 'ground' extra)")
     folder = Path(spec.origin).parent / "static"
-    missing = [n for n in ("swagger-ui-bundle.js", "swagger-ui.css", "redoc.standalone.js") if not (folder / n).is_file()]
+    names = ("swagger-ui-bundle.js", "swagger-ui.css", "redoc.standalone.js")
+    missing = [n for n in names if not (folder / n).is_file()]
     if missing:
         raise SkylocError(f"fastapi-offline has no {', '.join(missing)}: reinstall it")
     return folder

@@ -30,7 +30,8 @@ SPEC = {"kind": "skyline_db", "size_m": 20, "step_m": 10, "azimuths": 36, "tile_
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory, service_dem):
-    settings = ServiceSettings(data_dir=tmp_path_factory.mktemp("faults") / "data", token=H.TOKEN, n_workers=1, min_free_bytes=0)
+    settings = ServiceSettings(data_dir=tmp_path_factory.mktemp("faults") / "data", token=H.TOKEN, n_workers=1,
+                               min_free_bytes=0)
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         client.headers.update(H.AUTH)
         assert client.app.state.runner.wait_ready(120)
@@ -84,6 +85,7 @@ def test_disk_full_in_the_failure_handler_does_not_kill_the_runner(service, monk
     monkeypatch.setattr(runner_mod, "write_result_zip", _real_zip())
     jb = _wait(client, b["id"], ("done", "failed"))
     assert jb["state"] == "done", jb  # the queue continued
+    _assert_cli_terrain_levels(settings.jobs_dir / b["id"] / "db.zarr", dem, tmp=settings.data_dir.parent)
     stored = JobStore(settings.store_path).get_job(job_id=a["id"])
     assert (stored.state, stored.error) == ("failed", NO_SPACE)  # the failure was written once possible
     assert client.get("/healthz").json()["status"] == "ok"
@@ -92,6 +94,20 @@ def test_disk_full_in_the_failure_handler_does_not_kill_the_runner(service, monk
     ja = _wait(client, a["id"], ("done", "failed"))
     assert ja["state"] == "done" and ja["tiles_done"] == 4, ja
     assert max(JobStore(settings.store_path).render_counts(job_id=a["id"]).values()) == 1  # resumed, not redone
+
+
+def _assert_cli_terrain_levels(db_path, dem, *, tmp):
+    """The service database carries the CLI's ``terrain_levels`` metadata (same grid rendered by the CLI)."""
+    from board.skydb import SkyDB
+    from render_service.dbrender import render_database
+    from render_service.renderers.base import RenderSpec
+
+    service = SkyDB.open(db_path).meta.extra
+    store = JobStore(tmp / "data" / "skyloc.sqlite")
+    cli = render_database(store.get_dem(dem_id=dem["id"]).path, center_xy=tuple(dem["center"]), size_m=20,
+                          step_m=10, spec=RenderSpec(camera_height_m=2.0, n_azimuth=72), out=tmp / "cli.zarr",
+                          tile_size=2, progress=False).meta.extra
+    assert cli["terrain_levels"] and service["terrain_levels"] == cli["terrain_levels"]
 
 
 def _real_zip():

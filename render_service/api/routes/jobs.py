@@ -14,12 +14,12 @@ from fastapi.responses import FileResponse
 
 from board.errors import InvalidInputError
 from render_service.api.deps import get_runner, get_settings, get_store
+from render_service.planning import job_id_for, plan_db_job, spec_dict
 from render_service.renderers.base import RENDERERS
 from render_service.schemas import DatasetJobIn, ErrorOut, JobIn, JobListOut, JobOut, SkylineDbJobIn
 from render_service.settings import ServiceSettings
-from render_service.store import JobRecord, JobStore
-from render_service.planning import job_id_for, plan_db_job, spec_dict
 from render_service.storage import scrub_paths
+from render_service.store import JobRecord, JobStore
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
