@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
+from blender_addon.cli_options import assume_metric_option, body_option, crs_option, dem_option, site
 from blender_addon.terrain.crs import crs_name
-from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -48,59 +48,69 @@ def synth_cmd(preset: str, size_m: float, res_m: float, seed: int, out_path: str
 
 @dem_group.command("info")
 @click.argument("dem")
-@click.option("--body", default=None, help="Body name (earth, mars, moon, europa) or radius in metres.")
-@click.option("--assume-metric", is_flag=True, help="A raster without CRS has metric coordinates.")
+@body_option()
+@assume_metric_option()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def info_cmd(dem: str, body: str | None, assume_metric: bool, as_json: bool) -> None:
     """Describe a DEM (file or procedural:PRESET:SEED) in its metric working CRS, without reading it whole."""
     from blender_addon.terrain.dem import dem_info, resolve_dem
 
     info = dem_info(resolve_dem(dem), body=body, assume_metric=assume_metric)
+    src_bounds, src_name = _source_bounds(info)
     if as_json:
-        click.echo(json.dumps(info.to_json_dict(), indent=2))
+        d = info.to_json_dict()
+        d["source_bounds"] = list(src_bounds)
+        d["source_crs_name"] = src_name
+        click.echo(json.dumps(d, indent=2))
         return
     b = info.bounds
     click.echo(f"{info.path} ({info.driver}, {info.dtype})")
     click.echo(f"  body        {info.body.name} (R = {info.body.radius_m:.0f} m)")
     click.echo(f"  source CRS  {'geographic (degrees), reprojected' if info.is_geographic else 'projected, metres'}")
-    click.echo(f"  working CRS {crs_name(info.crs_wkt)}")
+    click.echo(f"  working CRS {crs_name(info.crs_wkt)} (metres: every output's x, y)")
     click.echo(f"  grid        {info.size[0]} x {info.size[1]} cells of {info.cell_m:g} m")
-    click.echo(f"  bounds      x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m")
+    sb = src_bounds
+    if info.is_geographic:
+        click.echo(f"  bounds      lon {sb[0]:.6f}..{sb[2]:.6f}, lat {sb[1]:.6f}..{sb[3]:.6f} deg in {src_name} "
+                   "(what --at / --center expect)")
+        click.echo(f"  working     x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m (outputs; --crs to give these)")
+    else:
+        click.echo(f"  bounds      x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m in {src_name or 'the DEM CRS'} "
+                   "(what --at / --center expect, and the outputs' CRS)")
     click.echo(f"  nodata      ~{info.nodata_fraction:.2%}")
     click.echo(f"  sha256      {info.sha256}")
 
 
 @dem_group.command("prepare")
-@click.option("--dem", "dem", required=True, help="DEM file or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
-@click.option("--center", required=True, help="Site X,Y in the DEM's own CRS (lon,lat for a DEM in degrees) unless --crs.")
+@dem_option()
+@click.option("--center", required=True,
+              help="Site X,Y in the DEM's own CRS (lon,lat for a DEM in degrees) unless --crs.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output folder.")
-@click.option("--crs", default=None, help="CRS of --center (e.g. EPSG:4326, a WKT or PROJ string).")
+@crs_option()
 @click.option("--grid-size", "grid_size", type=float, default=1000.0, show_default=True,
               help="Side of the square search grid around the centre (m).")
 @click.option("--azimuth-step", type=float, default=1.0, show_default=True, help="Skyline azimuth resolution (deg).")
-@click.option("--max-radius", type=float, default=None, help="Keep terrain up to this far beyond the grid (m); default: the DEM's edge.")
-@click.option("--body", default=None, help="Body name (earth, mars, moon, europa) or radius in metres.")
-@click.option("--assume-metric", is_flag=True, help="A raster without CRS has metric coordinates.")
+@click.option("--max-radius", type=float, default=None,
+              help="Keep terrain up to this far beyond the grid (m); default: the DEM's edge.")
+@body_option()
+@assume_metric_option()
 def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size: float, azimuth_step: float,
                 max_radius: float | None, body: str | None, assume_metric: bool) -> None:
     """Build the multi-resolution terrain (nested max-downsampled GeoTIFF levels + VRT + terrain.json)."""
-    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
     from blender_addon.terrain.multires import build_multires
 
     if grid_size < 0:
         raise InvalidInputError(f"--grid-size must be >= 0 m, got {grid_size}")
-    path = resolve_dem(dem)
-    cx, cy = parse_xy(center, "--center")
-    site = to_metric_xy(cx, cy, dem_path=path, crs=crs, body=body, assume_metric=assume_metric)
+    c = site(dem, center, "--center", crs=crs, body=body, assume_metric=assume_metric)
+    path = c.dem_path
     terrain = build_multires(
-        path, site, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
+        path, c.xy_m, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
         max_radius_m=max_radius, assume_metric=assume_metric, progress=True,
     )
     from blender_addon.terrain.preview import plot_multires
 
     png = plot_multires(terrain, Path(out_dir) / "levels.png")
-    click.echo(f"terrain for {path} around ({site[0]:.2f}, {site[1]:.2f}) m "
-               f"in CRS {crs_name(terrain.crs_wkt)!r} (body {terrain.body.name}) -> {out_dir}")
+    click.echo(f"terrain for {path} around {c.describe()} (body {terrain.body.name}) -> {out_dir}")
     click.echo("| level | cell (m) | cells | x range (m) | y range (m) | used beyond (m) |")
     click.echo("|---|---|---|---|---|---|")
     for k, (lvl, inner) in enumerate(zip(terrain.levels, terrain.meta["inner_distance_m"])):
@@ -108,6 +118,17 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
         click.echo(f"| {k} | {lvl.cell_m:g} | {lvl.array.shape[1]} x {lvl.array.shape[0]} | "
                    f"{b[0]:.1f}..{b[2]:.1f} | {b[1]:.1f}..{b[3]:.1f} | {inner:.0f} |")
     click.echo(f"levels picture: {png}")
+
+
+def _source_bounds(info) -> tuple[tuple[float, float, float, float], str]:
+    """Bounds of the DEM file in its own CRS (lon/lat degrees for a DEM in degrees), and that CRS's name."""
+    from osgeo import gdal  # noqa: PLC0415
+
+    ds = gdal.Open(str(info.path))
+    gt, nx, ny = ds.GetGeoTransform(), ds.RasterXSize, ds.RasterYSize
+    xs = [gt[0], gt[0] + nx * gt[1] + ny * gt[2]]
+    ys = [gt[3], gt[3] + nx * gt[4] + ny * gt[5]]
+    return (min(xs), min(ys), max(xs), max(ys)), crs_name(ds.GetProjectionRef() or "")
 
 
 def register(group: click.Group) -> None:

@@ -1,8 +1,12 @@
 """The Blender skyline renderer: database skylines from binary Cycles panoramas.
 
-Same contract as the ray-marcher (:mod:`render_service.renderers.base`)::
+The same tile contract as the ray-marcher::
 
-    render_tile(terrain, grid, tile, spec) -> TileResult
+    render_tile(terrain, grid, tile, spec) -> SkylineTile (elevation_deg, distance_m)
+
+(``spec`` is any object with the fields of ``render_service.renderers.base.RenderSpec``; the
+service's adapter :mod:`render_service.renderers.blender` turns the result into its
+``TileResult``: the add-on never imports the service).
 
 The terrain is built once per process into a persistent Blender scene (curvature from
 ``spec.body_radius_m`` / ``spec.refraction_k``); for each position only the camera moves.  A
@@ -159,9 +163,9 @@ _SESSION = _Session()
 
 def _ensure_scene(terrain: MultiResTerrain, radius_m: float, refraction_k: float,
                   refine_half_m: float | None, options: BlenderSkylineOptions) -> None:
-    from blender_addon import scene as S
-
     import bpy  # noqa: TID251
+
+    from blender_addon import scene as S
 
     key = (id(terrain), float(radius_m), float(refraction_k), refine_half_m, options)
     scene = bpy.context.scene
@@ -278,16 +282,22 @@ def _horizon_distances(cam, az_rel_deg: np.ndarray, el_deg: np.ndarray, empty: n
     return out
 
 
+@dataclass
+class SkylineTile:
+    """A rendered tile: elevation_deg (degrees above the eye's local horizontal) and distance_m (horizontal
+    distance to the horizon point, metres, NaN where none), both (nrows, ncols, n_azimuth) float32."""
+
+    elevation_deg: np.ndarray
+    distance_m: np.ndarray
+
+
 def render_tile(terrain: MultiResTerrain, grid, tile, spec, *,
-                options: BlenderSkylineOptions = DEFAULT_OPTIONS):
-    """Render every position of ``tile`` (see :mod:`render_service.renderers.base` for the contract).
+                options: BlenderSkylineOptions = DEFAULT_OPTIONS) -> SkylineTile:
+    """Render every position of ``tile`` of ``grid`` (a :class:`board.skydb.GridSpec` and
+    :class:`board.skydb.Tile`) with ``spec``'s camera height, azimuths, body radius and refraction.
 
-    Returns TileResult with elevation_deg and distance_m, (nrows, ncols, n_azimuth) float32.
+    Returns SkylineTile with elevation_deg and distance_m, (nrows, ncols, n_azimuth) float32.
     """
-    # The contract's result type lives with the service; imported lazily so that blender_addon
-    # does not depend on render_service at import time.
-    from render_service.renderers.base import TileResult
-
     rows = np.arange(tile.row0, tile.row0 + tile.nrows)
     cols = np.arange(tile.col0, tile.col0 + tile.ncols)
     jj, ii = np.meshgrid(cols, rows)
@@ -305,4 +315,4 @@ def render_tile(terrain: MultiResTerrain, grid, tile, spec, *,
                                         camera_height_m=spec.camera_height_m, radius_m=spec.body_radius_m,
                                         refraction_k=spec.refraction_k, max_distance_m=spec.max_distance_m,
                                         refine_half_m=half, options=options)
-    return TileResult(elevation_deg=out, distance_m=dist)
+    return SkylineTile(elevation_deg=out, distance_m=dist)

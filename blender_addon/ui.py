@@ -3,8 +3,15 @@ from __future__ import annotations
 
 import bpy  # noqa: TID251 (extension layer)
 
-from .ops import (SKYLOC_OT_acquire, SKYLOC_OT_build_terrain, SKYLOC_OT_camera_preset, SKYLOC_OT_import_dem,
-                  SKYLOC_OT_place_rover, SKYLOC_OT_render_database, SKYLOC_OT_render_panorama)
+from .ops import (
+    SKYLOC_OT_acquire,
+    SKYLOC_OT_build_terrain,
+    SKYLOC_OT_camera_preset,
+    SKYLOC_OT_import_dem,
+    SKYLOC_OT_place_rover,
+    SKYLOC_OT_render_database,
+    SKYLOC_OT_render_panorama,
+)
 
 
 class _SkylocPanel:

@@ -243,11 +243,6 @@ def camera_to_body(dirs_cam, pan_deg: float, tilt_deg: float) -> np.ndarray:
     return np.asarray(dirs_cam, dtype=np.float64) @ rotation_body_from_camera(pan_deg, tilt_deg).T
 
 
-def body_to_camera(dirs_body, pan_deg: float, tilt_deg: float) -> np.ndarray:
-    """Body-frame directions (..., 3) expressed in the camera frame."""
-    return np.asarray(dirs_body, dtype=np.float64) @ rotation_body_from_camera(pan_deg, tilt_deg)
-
-
 def pixel_to_az_el(camera: CameraModel, u, v, pan_deg: float, tilt_deg: float, *, heading_deg: float = 0.0,
                    pitch_deg: float = 0.0, roll_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (degrees, ENU) seen by pixel ``(u, v)`` of a frame taken at ``pan``/``tilt``.

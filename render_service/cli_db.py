@@ -12,8 +12,8 @@ import math
 
 import click
 
+from blender_addon.cli_options import dem_options, site
 from blender_addon.terrain.crs import crs_name
-from board.cliargs import parse_xy
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -34,26 +34,16 @@ def _spec(height: float, azimuths: int, refraction: float, max_distance: float |
                       max_distance_m=max_distance)
 
 
-def _site(dem: str, value: str, name: str, crs: str | None, body: str | None):
-    from blender_addon.terrain.dem import resolve_dem, to_metric_xy  # noqa: PLC0415
-
-    path = resolve_dem(dem)
-    x, y = parse_xy(value, name)
-    xm, ym = to_metric_xy(x, y, dem_path=path, crs=crs, body=body)
-    return path, (x, y), (xm, ym)
-
-
 @click.group("db")
 def db_group() -> None:
     """Skyline databases: render one from a DEM, describe one, compute a single horizon."""
 
 
 _common_render = [
-    click.option("--dem", required=True, help="DEM file or procedural:PRESET:SEED[:SIZE_M[:RES_M]]."),
-    click.option("--height", "height", type=float, default=2.0, show_default=True, help="Camera height above ground (m)."),
+    dem_options(),
+    click.option("--height", "height", type=float, default=2.0, show_default=True,
+                 help="Camera height above ground (m)."),
     click.option("--azimuths", type=int, default=360, show_default=True, help="Azimuth samples (360 -> 1 degree)."),
-    click.option("--crs", default=None, help="CRS of the coordinates (e.g. EPSG:4326); default: the DEM's own."),
-    click.option("--body", default=None, help="Body name or radius in metres; default: from the DEM's CRS."),
     click.option("--refraction", type=float, default=0.0, show_default=True, help="Refraction coefficient k."),
     click.option("--max-distance", type=float, default=None, help="Ignore terrain farther than this (m)."),
 ]
@@ -78,8 +68,8 @@ def _with(options):
               help="Prepared multi-resolution terrain (skyloc dem prepare); built here when absent.")
 @click.option("--out", required=True, type=click.Path(), help="Output Zarr store (resumed if it exists).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def render_cmd(dem, height, azimuths, crs, body, refraction, max_distance, center, size_m, step_m, renderer,
-               tile, terrain_dir, out, no_progress) -> None:
+def render_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_distance, center, size_m, step_m,
+               renderer, tile, terrain_dir, out, no_progress) -> None:
     """Render (or resume) the skyline database of a square grid of positions."""
     from render_service.dbrender import render_database  # noqa: PLC0415
 
@@ -90,14 +80,14 @@ def render_cmd(dem, height, azimuths, crs, body, refraction, max_distance, cente
     if tile <= 0:
         raise InvalidInputError(f"--tile must be a positive number of positions, got {tile}")
     spec = _spec(height, azimuths, refraction, max_distance)
-    path, _, site = _site(dem, center, "--center", crs, body)
-    db = render_database(path, center_xy=site, size_m=size_m, step_m=step_m, spec=spec, out=out,
+    c = site(dem, center, "--center", crs=crs, body=body, assume_metric=assume_metric)
+    db = render_database(c.dem_path, center_xy=c.xy_m, size_m=size_m, step_m=step_m, spec=spec, out=out,
                          renderer=renderer, tile_size=tile, terrain_dir=terrain_dir, progress=not no_progress,
-                         body=body)
+                         body=body, assume_metric=assume_metric)
     s = db.summary()
     click.echo(f"wrote {out}: {s['grid']['nx']} x {s['grid']['ny']} positions x {s['n_azimuth']} azimuths, "
-               f"{s['size_bytes'] / 1e6:.1f} MB, centre ({site[0]:.2f}, {site[1]:.2f}) m in CRS "
-               f"{crs_name(s['crs_wkt'])!r}, renderer {s['renderer']} v{s['renderer_version']}")
+               f"{s['size_bytes'] / 1e6:.1f} MB, renderer {s['renderer']} v{s['renderer_version']}; centre "
+               f"{c.describe()}; positions (skyloc locate's x, y) are metres in {crs_name(s['crs_wkt'])!r}")
 
 
 @db_group.command("info")
@@ -119,8 +109,8 @@ def info_cmd(store: str, as_json: bool) -> None:
                f"(x {b[0]:.2f}..{b[2]:.2f}, y {b[1]:.2f}..{b[3]:.2f} m)")
     click.echo(f"  CRS         {s['crs_name']}")
     click.echo(f"  camera      {s['camera_height_m']:g} m above ground")
-    click.echo(f"  azimuths    {s['n_azimuth']} from {s['azimuth_start_deg']:g} deg every {s['azimuth_step_deg']:g} deg "
-               "(clockwise from grid north)")
+    click.echo(f"  azimuths    {s['n_azimuth']} from {s['azimuth_start_deg']:g} deg every "
+               f"{s['azimuth_step_deg']:g} deg (clockwise from grid north)")
     click.echo(f"  body        {s['body']} (R = {s['body_radius_m']:.0f} m), refraction k = {s['refraction_k']:g}")
     click.echo(f"  renderer    {s['renderer']} v{s['renderer_version']}")
     click.echo(f"  tiles       {s['tiles_done']} of {s['tiles_total']} done ({s['tile_size']} x {s['tile_size']})")
@@ -133,13 +123,15 @@ def info_cmd(store: str, as_json: bool) -> None:
 @_with(_common_render)
 @click.option("--at", "at", required=True, help="Position X,Y (DEM's CRS, lon,lat in degrees, unless --crs).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def horizon_cmd(dem, height, azimuths, crs, body, refraction, max_distance, at, as_json) -> None:
+def horizon_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_distance, at, as_json) -> None:
     """Horizon elevation by azimuth at one position, straight from the DEM (ray-marcher)."""
     from render_service.dbrender import horizon_from_dem  # noqa: PLC0415
 
     spec = _spec(height, azimuths, refraction, max_distance)
-    path, given, (x, y) = _site(dem, at, "--at", crs, body)
-    az, el, dist, crs_wkt, used = horizon_from_dem(path, x=x, y=y, spec=spec, body=body)
+    c = site(dem, at, "--at", crs=crs, body=body, assume_metric=assume_metric)
+    given, (x, y) = c.given, c.xy_m
+    az, el, dist, crs_wkt, used = horizon_from_dem(c.dem_path, x=x, y=y, spec=spec, body=body,
+                                                   assume_metric=assume_metric)
     doc = {
         "azimuth_deg": [round(float(a), 6) for a in az],
         "elevation_deg": [round(float(e), 4) for e in el],

@@ -15,7 +15,6 @@ and the demo call.  All coordinates are metres in the DEM's metric working CRS (
 """
 from __future__ import annotations
 
-import importlib
 import logging
 import shutil
 import sys
@@ -44,6 +43,7 @@ class RenderJob:
     spec : what to render at every position (body radius from the DEM's body)
     meta : the database metadata (renderer, version, DEM hash...)
     body : the body the DEM lives on
+    assume_metric : the DEM has no CRS and its coordinates are metres (``--assume-metric``)
     """
 
     dem_path: Path
@@ -53,14 +53,21 @@ class RenderJob:
     body: Body
     renderer: str = "raymarch"
     extra: dict = field(default_factory=dict)
+    assume_metric: bool = False
 
 
 def _dem_module():
-    return importlib.import_module("blender_addon.terrain.dem")
+    """blender_addon.terrain.dem (GDAL), imported on first use."""
+    from blender_addon.terrain import dem  # noqa: PLC0415
+
+    return dem
 
 
 def _multires_module():
-    return importlib.import_module("blender_addon.terrain.multires")
+    """blender_addon.terrain.multires, imported on first use."""
+    from blender_addon.terrain import multires  # noqa: PLC0415
+
+    return multires
 
 
 def renderer_version(renderer: str) -> str:
@@ -79,7 +86,7 @@ def _resolve_renderer(renderer: str):
 
 def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                 spec: RenderSpec, renderer: str = "raymarch", tile_size: int = 64,
-                body: str | float | None = None, what: str = "the grid") -> RenderJob:
+                body: str | float | None = None, what: str = "the grid", assume_metric: bool = False) -> RenderJob:
     """Validate a render request and describe it; nothing is written.
 
     ``center_xy`` is in metres in the DEM's metric working CRS; ``spec.body_radius_m`` is replaced
@@ -90,7 +97,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
         raise InvalidInputError(f"tile size must be a positive number of positions, got {tile_size}")
     grid = GridSpec.from_center(center_xy, size_m, step_m)          # validates step > 0, size >= 0
     render_fn = _resolve_renderer(renderer)
-    info = _dem_module().dem_info(str(dem_path), body=body)
+    info = _dem_module().dem_info(str(dem_path), body=body, assume_metric=assume_metric)
     the_body = body_from_name(body) if body is not None else info.body
     spec = replace(spec, body_radius_m=float(the_body.radius_m))
     grid = replace(grid, crs_wkt=info.crs_wkt)
@@ -111,7 +118,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
                "size_m": float(size_m), "step_m": float(step_m),
                "max_distance_m": spec.max_distance_m},
     )
-    return RenderJob(Path(dem_path), grid, spec, meta, the_body, renderer)
+    return RenderJob(Path(dem_path), grid, spec, meta, the_body, renderer, assume_metric=assume_metric)
 
 
 #: Coarsest azimuth resolution the terrain levels are planned for (degrees).  The levels' cells
@@ -140,8 +147,8 @@ def load_terrain(job: RenderJob, *, terrain_dir=None) -> MultiResTerrain:
         cx, cy = job.meta.extra["center_xy_m"]
         terrain = mr.build_multires(str(job.dem_path), (cx, cy), grid_half_m=half,
                                     azimuth_step_deg=terrain_azimuth_step_deg(job.spec.n_azimuth), out_dir=tdir,
-                                    body=job.body,
-                                    max_radius_m=job.spec.max_distance_m)
+                                    body=job.body, max_radius_m=job.spec.max_distance_m,
+                                    assume_metric=job.assume_metric)
     gx0, gy0, gx1, gy1 = job.grid.bounds()
     check_positions_inside(terrain, [gx0, gx1, gx0, gx1], [gy0, gy0, gy1, gy1])
     return terrain
@@ -176,7 +183,7 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
 def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                     spec: RenderSpec, out, renderer: str = "raymarch", tile_size: int = 64,
                     terrain_dir=None, progress: bool = True, body: str | float | None = None,
-                    on_tile: Callable[[int, int], None] | None = None) -> SkyDB:
+                    on_tile: Callable[[int, int], None] | None = None, assume_metric: bool = False) -> SkyDB:
     """Render (or resume) the skyline database of a square grid centred on ``center_xy``.
 
     Parameters
@@ -195,13 +202,23 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
     """
     out = Path(out)
     job = prepare_job(dem_path, center_xy=center_xy, size_m=size_m, step_m=step_m, spec=spec,
-                      renderer=renderer, tile_size=tile_size, body=body)
+                      renderer=renderer, tile_size=tile_size, body=body, assume_metric=assume_metric)
     if out.exists():
         # refuse a different database (or a non-database) before spending time on the terrain
         if not (out / "zarr.json").is_file():
             raise InvalidInputError(f"{out} exists and is not a skyline database: choose another --out or delete it")
         SkyDBWriter.check_resumable(out, job.meta)
-    terrain = load_terrain(job, terrain_dir=terrain_dir)
+    from tqdm import tqdm  # noqa: PLC0415
+
+    total = job.grid.n_positions
+    # the bar opens before the terrain is prepared (several seconds on a large DEM) and says so
+    bar = tqdm(total=total, unit="pos", desc="skyline DB", disable=not progress, dynamic_ncols=True, file=sys.stderr)
+    bar.set_postfix_str("preparing the multi-resolution terrain")
+    try:
+        terrain = load_terrain(job, terrain_dir=terrain_dir)
+    except BaseException:
+        bar.close()
+        raise
     job.meta.extra["terrain_levels"] = [
         {"cell_m": float(lv.cell_m), "bounds": [float(b) for b in lv.bounds()]} for lv in terrain.levels]
     new_store = not out.exists()
@@ -209,14 +226,13 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
     written = 0
     try:
         pending = writer.pending_tiles()
-        total = job.grid.n_positions
         done_pos = total - sum(t.nrows * t.ncols for t in pending)
         log.info("%s: %d of %d tiles to render (%d positions, %d azimuths)", out, len(pending),
                  len(writer.tiles), total - done_pos, spec.n_azimuth)
-        from tqdm import tqdm  # noqa: PLC0415
-
-        with tqdm(total=total, initial=done_pos, unit="pos", desc="skyline DB", disable=not progress,
-                  dynamic_ncols=True, file=sys.stderr) as bar:
+        bar.update(done_pos)
+        bar.set_postfix_str(f"rendering {len(pending)} tiles of {max(t.nrows * t.ncols for t in writer.tiles)} "
+                            "positions")
+        with bar:
             n_done = len(writer.tiles) - len(pending)
             if on_tile is not None:
                 on_tile(n_done, len(writer.tiles))
@@ -229,6 +245,7 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
                     on_tile(n_done, len(writer.tiles))
         return writer.finalize()
     except BaseException:
+        bar.close()
         if new_store and written == 0:
             shutil.rmtree(out, ignore_errors=True)
             log.info("removed the unfinished new store %s", out)
@@ -239,7 +256,8 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
 
 
 def horizon_from_dem(dem_path, *, x: float, y: float, spec: RenderSpec, body: str | float | None = None,
-                     terrain_dir=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, RenderSpec]:
+                     terrain_dir=None, assume_metric: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, RenderSpec]:
     """Horizon at one point (metres, DEM metric CRS) straight from a DEM.
 
     Returns (azimuth_deg, elevation_deg, distance_m, crs_wkt, spec_used).
@@ -247,7 +265,7 @@ def horizon_from_dem(dem_path, *, x: float, y: float, spec: RenderSpec, body: st
     from render_service.renderers.raymarch import horizon_at  # noqa: PLC0415
 
     job = prepare_job(dem_path, center_xy=(x, y), size_m=0.0, step_m=1.0, spec=spec, body=body,
-                      what="the position")
+                      what="the position", assume_metric=assume_metric)
     terrain = load_terrain(job, terrain_dir=terrain_dir)
     az, el, dist = horizon_at(terrain, x, y, job.spec)
     return az, el, dist, job.grid.crs_wkt, job.spec

@@ -48,14 +48,6 @@ def _write_json(path: Path, doc: dict) -> None:
     os.replace(tmp, path)
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def scaled_dem(src: Path, z_scale: float, out: Path) -> Path:
     """A copy of DEM ``src`` with heights multiplied by ``z_scale`` (GeoTIFF, kept if already there)."""
     if out.is_file():

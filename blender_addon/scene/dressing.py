@@ -121,11 +121,6 @@ def sun_direction(deg: Degradation, heading_deg: float = 0.0) -> tuple[float, fl
 # ------------------------------------------------------------------------------------------------
 # node helpers
 # ------------------------------------------------------------------------------------------------
-def _node(nt, kind: str, **inputs):
-    n = nt.nodes.new(kind)
-    for k, v in inputs.items():
-        n.inputs[k].default_value = v
-    return n
 
 
 def _math(nt, op: str, a, b=None):
@@ -138,12 +133,6 @@ def _math(nt, op: str, a, b=None):
             n.inputs[i].default_value = float(v)
         else:
             nt.links.new(v, n.inputs[i])
-    return n.outputs[0]
-
-
-def _rgb(nt, rgb) -> bpy.types.NodeSocket:
-    n = nt.nodes.new("ShaderNodeRGB")
-    n.outputs[0].default_value = (float(rgb[0]), float(rgb[1]), float(rgb[2]), 1.0)
     return n.outputs[0]
 
 

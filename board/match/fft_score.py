@@ -58,31 +58,6 @@ def _ccs_views(c: np.ndarray):
     return c[..., 0], re, im, nyq
 
 
-def ccs_from_complex(z: np.ndarray, n: int) -> np.ndarray:
-    """Pack an rfft-style spectrum ``z`` (..., n//2+1) into CCS (..., n) float64."""
-    out = np.zeros(z.shape[:-1] + (n,), dtype=np.float64)
-    re0, re, im, nyq = _ccs_views(out)
-    m = (n - 1) // 2
-    re0[...] = z[..., 0].real
-    re[...] = z[..., 1:m + 1].real
-    im[...] = z[..., 1:m + 1].imag
-    if nyq is not None:
-        nyq[...] = z[..., n // 2].real
-    return out
-
-
-def mac_conj(out: np.ndarray, sc: np.ndarray, q: np.ndarray, scale: float = 1.0) -> None:
-    """out += scale * sc * conj(q), with ``sc``/``out`` CCS (P, N) and ``q`` CCS (N,) (in place)."""
-    o0, ore, oim, onyq = _ccs_views(out)
-    s0, sre, sim, snyq = _ccs_views(sc)
-    q0, qre, qim, qnyq = _ccs_views(q)
-    o0 += scale * s0 * q0
-    ore += scale * (sre * qre + sim * qim)
-    oim += scale * (sim * qre - sre * qim)
-    if onyq is not None:
-        onyq += scale * snyq * qnyq
-
-
 def bin_energy(c: np.ndarray, skip: int) -> np.ndarray:
     """Sum over all N DFT bins except |k| < ``skip`` of |X_k|^2, from CCS rows (Parseval)."""
     n = c.shape[-1]

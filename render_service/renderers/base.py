@@ -6,9 +6,8 @@ out without knowing which renderer runs.
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
@@ -59,20 +58,34 @@ class TileResult:
     distance_m: np.ndarray | None = None
 
 
-class RenderTileFn(Protocol):
-    def __call__(self, terrain, grid: GridSpec, tile: Tile, spec: RenderSpec) -> TileResult: ...
+#: a renderer's tile function: ``render_tile(terrain, grid, tile, spec) -> TileResult``
+RenderTile = Callable[[object, GridSpec, Tile, RenderSpec], TileResult]
 
 
-#: renderer name -> "module:function" implementing RenderTileFn
+def _raymarch() -> RenderTile:
+    from render_service.renderers.raymarch import render_tile  # noqa: PLC0415 - numba, loaded on use
+
+    return render_tile
+
+
+def _blender() -> RenderTile:
+    from render_service.renderers.blender import render_tile  # noqa: PLC0415 - bpy, loaded on use
+
+    return render_tile
+
+
+_LOADERS: dict[str, Callable[[], RenderTile]] = {"raymarch": _raymarch, "blender": _blender}
+
+#: renderer name -> "module:function" of its tile function (documentation, and what the service checks is
+#: installed); :func:`get_renderer` loads it through a plain import
 RENDERERS: dict[str, str] = {
     "raymarch": "render_service.renderers.raymarch:render_tile",
-    "blender": "blender_addon.skyline_renderer:render_tile",
+    "blender": "render_service.renderers.blender:render_tile",
 }
 
 
-def get_renderer(name: str) -> Callable[..., TileResult]:
-    """Resolve a renderer name to its ``render_tile`` function."""
+def get_renderer(name: str) -> RenderTile:
+    """Resolve a renderer name to its ``render_tile`` function (ImportError when its component is missing)."""
     if name not in RENDERERS:
         raise InvalidInputError(f"unknown renderer {name!r}: choose one of {', '.join(RENDERERS)}")
-    mod, fn = RENDERERS[name].split(":")
-    return getattr(importlib.import_module(mod), fn)
+    return _LOADERS[name]()

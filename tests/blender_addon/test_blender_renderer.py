@@ -58,9 +58,12 @@ def test_sample_columns_is_periodic_linear_interpolation():
 
 def test_blender_renderer_is_selectable():
     from blender_addon import skyline_renderer
+    from render_service.renderers import blender
     from render_service.renderers.base import get_renderer
 
-    assert get_renderer("blender") is skyline_renderer.render_tile
+    assert get_renderer("blender") is blender.render_tile
+    # the database records the add-on renderer's version through the service's adapter
+    assert blender.__version__ == skyline_renderer.__version__
 
 
 @pytest.mark.blender

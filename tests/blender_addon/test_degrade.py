@@ -5,8 +5,17 @@ import numpy as np
 import pytest
 
 from blender_addon.core.degrade import (
-    Degradation, PRESETS, add_glare, add_sensor_noise, degrade_frame, distort_image, gaussian_blur,
-    get_degradation, render_camera_for, srgb_decode, srgb_encode,
+    PRESETS,
+    Degradation,
+    add_glare,
+    add_sensor_noise,
+    degrade_frame,
+    distort_image,
+    gaussian_blur,
+    get_degradation,
+    render_camera_for,
+    srgb_decode,
+    srgb_encode,
 )
 from board.camera import CameraModel
 from board.errors import InvalidInputError
