@@ -25,6 +25,7 @@ PLUGIN_MODULES = (
     "render_service.cli_db",      # skyloc db render|info|horizon
     "render_service.cli_serve",   # skyloc serve
     "render_service.cli_campaign",  # skyloc campaign
+    "render_service.cli_descent_eval",  # skyloc descent eval
     "board.cli_extract",          # skyloc extract
     "board.cli_locate",           # skyloc locate
 )
