@@ -122,6 +122,100 @@ async def _burst_path(base: str, path: str, n: int) -> list[float]:
     return list(await asyncio.gather(*[one() for _ in range(n)]))
 
 
+_DEM_MEMORY_SCRIPT = """
+import json, resource, sys
+from fastapi.testclient import TestClient
+from render_service.main import create_app
+from render_service.settings import ServiceSettings
+data, tif, token, cache = sys.argv[1:5]
+if cache == "unbounded":
+    from osgeo import gdal
+    import render_service.main as m
+    m._limit_gdal_cache = lambda nbytes: None  # the behaviour before the bound
+s = ServiceSettings(data_dir=data, token=token, start_cluster=False)
+with TestClient(create_app(s)) as c:
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with open(tif, "rb") as fh:
+        r = c.post("/v1/dems", files={"file": ("sparse.tif", fh.read())}, headers={"Authorization": "Bearer " + token})
+    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"status": r.status_code, "before_mb": before / 1024, "peak_mb": after / 1024}))
+"""
+
+
+def dem_memory(size: int = 30_000) -> list[str]:
+    """Peak RSS of a fresh API process validating a ``size`` x ``size`` sparse GeoTIFF upload (bounded vs not)."""
+    import json
+
+    from osgeo import gdal, osr
+
+    work = Path(tempfile.mkdtemp(prefix="skyloc-bench-demmem-"))
+    try:
+        tif = work / "sparse.tif"
+        opts = ["TILED=YES", "BLOCKXSIZE=1024", "BLOCKYSIZE=1024", "SPARSE_OK=TRUE", "BIGTIFF=YES"]
+        ds = gdal.GetDriverByName("GTiff").Create(str(tif), size, size, 1, gdal.GDT_Float32, options=opts)
+        ds.SetGeoTransform((500000.0, 1.0, 0.0, 4000000.0, 0.0, -1.0))
+        srs = osr.SpatialReference()
+        srs.ImportFromEPSG(32633)
+        ds.SetProjection(srs.ExportToWkt())
+        ds = None
+        rows = []
+        for cache in ("bounded", "unbounded"):
+            out = subprocess.run([sys.executable, "-c", _DEM_MEMORY_SCRIPT, str(work / f"data-{cache}"), str(tif),
+                                  TOKEN, cache], capture_output=True, text=True, check=True)
+            rows.append((cache, json.loads(out.stdout.strip().splitlines()[-1])))
+        lines = [f"\nSparse GeoTIFF {size} x {size} float32 ({tif.stat().st_size:,} bytes on disk) uploaded to a fresh "
+                 "API process (peak RSS, `ru_maxrss`):\n",
+                 "| GDAL block cache | answer | RSS before upload (MB) | peak (MB) |", "| --- | ---: | ---: | ---: |"]
+        for cache, r in rows:
+            label = "bounded (gdal_cache_bytes = 64 MiB)" if cache == "bounded" else "GDAL default (5 % of RAM)"
+            lines.append(f"| {label} | {r['status']} | {r['before_mb']:.0f} | {r['peak_mb']:.0f} |")
+        return lines
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def schemathesis_counts(max_examples: int) -> list[str]:
+    """Generated requests per operation against the in-process app (authenticated): cases and status codes."""
+    from collections import Counter
+
+    import schemathesis
+    from fastapi.testclient import TestClient
+    from hypothesis import HealthCheck, given, settings
+    from schemathesis.checks import not_a_server_error
+
+    from blender_addon.terrain.procedural import synthesize
+    from render_service.main import create_app
+    from render_service.settings import ServiceSettings
+
+    work = Path(tempfile.mkdtemp(prefix="skyloc-bench-schema-"))
+    try:
+        dem = synthesize("mars", size_m=400.0, res_m=1.0, seed=7, out_path=work / "dem.tif")
+        app = create_app(ServiceSettings(data_dir=work / "data", token=TOKEN, start_cluster=False,
+                                         max_upload_bytes=4_000_000))
+        with TestClient(app) as c:
+            assert c.post("/v1/dems", files={"file": ("dem.tif", dem.read_bytes())}, headers=AUTH).status_code == 201
+        schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+        codes: Counter = Counter()
+        n_ops = 0
+        for result in schema.get_all_operations():
+            op = result.ok()
+            n_ops += 1
+
+            @given(op.as_strategy())
+            @settings(max_examples=max_examples, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+            def run(case):
+                r = case.call_and_validate(headers=AUTH, checks=[not_a_server_error])
+                codes[r.status_code] += 1
+
+            run()
+        total = sum(codes.values())
+        return [f"\nschemathesis: {n_ops} operations x up to {max_examples} examples = {total:,} requests, "
+                f"{sum(n for k, n in codes.items() if k >= 500)} answered 5xx; statuses "
+                + ", ".join(f"{k}: {n:,}" for k, n in sorted(codes.items())) + "."]
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--dem", default="procedural:mars:7:6000:5", help="DEM path or procedural:PRESET:SEED:SIZE:RES")
@@ -134,7 +228,16 @@ def main(argv=None) -> None:
     p.add_argument("--concurrency", type=int, default=200)
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--repeats", type=int, default=3, help="interleaved CLI / service runs (medians reported)")
+    p.add_argument("--dem-memory", action="store_true",
+                   help="only: peak memory of validating a 30000 x 30000 sparse GeoTIFF upload")
+    p.add_argument("--schemathesis", type=int, default=0, metavar="N",
+                   help="only: N generated requests per API operation, count the answers (no 5xx allowed)")
     args = p.parse_args(argv)
+    if args.dem_memory or args.schemathesis:
+        lines = dem_memory() if args.dem_memory else []
+        lines += schemathesis_counts(args.schemathesis) if args.schemathesis else []
+        print("\n".join(lines))  # noqa: T201 (benchmark output)
+        return
 
     from blender_addon.terrain.dem import dem_info, resolve_dem
 
@@ -215,6 +318,7 @@ def main(argv=None) -> None:
     out(f"| 100 requests one at a time | {qs[0]:.1f} | {qs[1]:.1f} | {seq.max() * 1000:.1f} |")
 
     print("\n".join(lines))  # noqa: T201 (benchmark output)
+
 
 if __name__ == "__main__":
     main()
