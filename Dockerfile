@@ -27,7 +27,7 @@ RUN chmod 0755 /usr/local/bin/skyloc-with-ca \
 RUN --mount=type=secret,id=ca-bundle \
     skyloc-with-ca apt-get update \
  && skyloc-with-ca apt-get install -y --no-install-recommends python3.11 ca-certificates \
- && rm -rf /var/lib/apt/lists/* /var/cache/apt/*.bin /var/log/apt /var/log/dpkg.log
+ && apt-get clean && rm -rf /var/lib/apt/lists/* /var/cache/apt/*.bin /var/log/apt /var/log/dpkg.log
 
 # ---------------------------------------------------------------------------------------------
 FROM base AS builder
@@ -39,7 +39,7 @@ ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_DEFAULT_TIMEOUT=120
 RUN --mount=type=secret,id=ca-bundle \
     skyloc-with-ca apt-get update \
  && skyloc-with-ca apt-get install -y --no-install-recommends python3.11-venv python3.11-dev build-essential libgdal-dev \
- && rm -rf /var/lib/apt/lists/*
+ && apt-get clean && rm -rf /var/lib/apt/lists/*
 RUN --mount=type=secret,id=ca-bundle \
     python3.11 -m venv /opt/skyloc \
  && skyloc-with-ca /opt/skyloc/bin/pip install --upgrade pip wheel "setuptools>=67"
@@ -62,7 +62,8 @@ COPY render_service ./render_service
 COPY skyloc ./skyloc
 RUN /opt/skyloc/bin/pip install --no-deps --no-build-isolation . \
  && /opt/skyloc/bin/pip check \
- && /opt/skyloc/bin/pip uninstall -y pip wheel setuptools
+ && /opt/skyloc/bin/pip uninstall -y pip wheel setuptools \
+ && find /opt/skyloc/lib/python3.11/site-packages -type d -name tests -prune -exec rm -rf {} +
 
 # ---------------------------------------------------------------------------------------------
 FROM base AS runtime
@@ -71,7 +72,7 @@ ARG DEBIAN_FRONTEND=noninteractive
 RUN --mount=type=secret,id=ca-bundle \
     skyloc-with-ca apt-get update \
  && skyloc-with-ca apt-get install -y --no-install-recommends libgdal32 tini openssl \
- && rm -rf /var/lib/apt/lists/* /var/cache/apt/*.bin /var/log/apt /var/log/dpkg.log \
+ && apt-get clean && rm -rf /var/lib/apt/lists/* /var/cache/apt/*.bin /var/log/apt /var/log/dpkg.log \
  && rm /usr/local/bin/skyloc-with-ca
 COPY --from=builder /opt/skyloc /opt/skyloc
 COPY scenes /opt/skyloc/share/scenes
@@ -86,6 +87,9 @@ ENV PATH=/opt/skyloc/bin:$PATH \
     NUMBA_CACHE_DIR=/tmp/numba-cache \
     SKYLOC_DATA_DIR=/data \
     SKYLOC_SCENES_DIR=/opt/skyloc/share/scenes
+LABEL org.opencontainers.image.title="skyloc render service" \
+      org.opencontainers.image.description="skyloc render service: API, Dask scheduler and worker roles (raymarch renderer, no bpy)" \
+      org.opencontainers.image.licenses="Apache-2.0"
 USER skyloc:skyloc
 WORKDIR /home/skyloc
 VOLUME ["/data"]

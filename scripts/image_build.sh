@@ -15,6 +15,7 @@
 #                    package indexes (build args; http(s) only; public defaults in the Dockerfile)
 #   BASE_IMAGE       base image                              [debian:bookworm-slim]
 #   BUILD_NICE       niceness of the build                   [15]
+#   STORAGE_DRIVER   buildah's storage driver                 [vfs]
 #   DEBOOTSTRAP_MIRROR  mirror for the debootstrap base      [$APT_MIRROR, else http://deb.debian.org/debian]
 #   IMAGE_CONTEXT    "." (the working tree) or "git" (the committed HEAD only, as a clean clone has it)  [.]
 set -euo pipefail
@@ -26,7 +27,8 @@ BASE_IMAGE=${BASE_IMAGE:-debian:bookworm-slim}
 NICE=${BUILD_NICE:-15}
 CA_BUNDLE=${CA_BUNDLE-${PIP_CERT:-${SSL_CERT_FILE:-}}}
 WORK=${IMAGE_WORK_DIR:-/var/tmp/skyloc-image}
-export STORAGE_DRIVER=${STORAGE_DRIVER:-vfs}
+STORAGE_DRIVER=${STORAGE_DRIVER:-vfs}   # buildah's storage; vfs works everywhere (overlay may not, nested)
+buildah() { command buildah --storage-driver "$STORAGE_DRIVER" "$@"; }
 LOCAL_BASE=localhost/skyloc-base:bookworm
 
 say() { echo "image_build: $*" >&2; }
@@ -34,18 +36,18 @@ die() { say "error: $*"; exit 1; }
 
 pick_engine() {
   if [ "$ENGINE" != auto ]; then
-    command -v "$ENGINE" >/dev/null 2>&1 || die "ENGINE=$ENGINE is not installed"
+    type -P "$ENGINE" >/dev/null 2>&1 || die "ENGINE=$ENGINE is not installed"
     echo "$ENGINE"; return
   fi
   # a docker client without a daemon (common in sandboxes) does not count
   if command -v docker >/dev/null 2>&1 && docker info >/dev/null 2>&1; then echo docker; return; fi
   if command -v podman >/dev/null 2>&1 && podman info >/dev/null 2>&1; then echo podman; return; fi
-  if ! command -v buildah >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+  if ! type -P buildah >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     say "no container engine: apt-get install buildah debootstrap"
     { apt-get update -qq && DEBIAN_FRONTEND=noninteractive nice -n "$NICE" apt-get install -y -qq buildah debootstrap; } >&2 \
       || die "apt-get install buildah debootstrap failed"
   fi
-  if command -v buildah >/dev/null 2>&1; then echo buildah; return; fi
+  if type -P buildah >/dev/null 2>&1; then echo buildah; return; fi
   die "no container engine: install one (as root on Debian 12: apt-get install -y buildah debootstrap)"
 }
 
@@ -89,6 +91,7 @@ path-include /usr/share/locale/locale.alias
 EOF
   echo 'APT::Install-Recommends "false";' >"$rootfs/etc/apt/apt.conf.d/docker-no-recommends"
   find "$rootfs/usr/share/doc" -mindepth 1 -not -name copyright -not -type d -delete 2>/dev/null || true
+  find "$rootfs/usr/share/locale" -mindepth 1 -maxdepth 1 -not -name locale.alias -exec rm -rf {} + 2>/dev/null || true
   rm -rf "$rootfs"/usr/share/man/* "$rootfs"/usr/share/info/* "$rootfs"/var/lib/apt/lists/* \
          "$rootfs"/var/cache/apt/*.bin "$rootfs"/var/cache/apt/archives/*.deb "$rootfs"/var/log/*.log
   local ctr mnt

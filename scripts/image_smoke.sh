@@ -13,7 +13,7 @@
 # 5. everything it started is stopped and removed (also on failure).
 #
 # Environment: IMAGE [skyloc-service:latest], ENGINE [auto], SMOKE_PORT [a free port],
-#              CA_BUNDLE [$PIP_CERT, else $SSL_CERT_FILE], SMOKE_TIMEOUT [300 s].
+#              CA_BUNDLE [$PIP_CERT, else $SSL_CERT_FILE], SMOKE_TIMEOUT [300 s], STORAGE_DRIVER [vfs].
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -21,7 +21,8 @@ IMAGE=${IMAGE:-skyloc-service:latest}
 ENGINE=${ENGINE:-auto}
 CA_BUNDLE=${CA_BUNDLE-${PIP_CERT:-${SSL_CERT_FILE:-}}}
 TIMEOUT=${SMOKE_TIMEOUT:-300}
-export STORAGE_DRIVER=${STORAGE_DRIVER:-vfs}
+STORAGE_DRIVER=${STORAGE_DRIVER:-vfs}   # buildah's storage; vfs works everywhere (overlay may not, nested)
+buildah() { command buildah --storage-driver "$STORAGE_DRIVER" "$@"; }
 HOST_PY=${HOST_PYTHON:-python3}
 UID_IMG=10001
 
@@ -31,7 +32,7 @@ die() { say "FAILED: $*"; exit 1; }
 if [ "$ENGINE" = auto ]; then
   if command -v docker >/dev/null 2>&1 && docker info >/dev/null 2>&1; then ENGINE=docker
   elif command -v podman >/dev/null 2>&1 && podman info >/dev/null 2>&1; then ENGINE=podman
-  elif command -v buildah >/dev/null 2>&1; then ENGINE=buildah
+  elif type -P buildah >/dev/null 2>&1; then ENGINE=buildah
   else die "no container engine (make image installs buildah on Debian as root)"; fi
 fi
 case "$ENGINE" in
@@ -42,13 +43,24 @@ PORT=${SMOKE_PORT:-$("$HOST_PY" -c 'import socket; s=socket.socket(); s.bind(("1
 WORK=$(mktemp -d /tmp/skyloc-image-smoke.XXXXXX)
 CTR=""; RUN_PID=""; MNT_CTR=""; NAME="skyloc-smoke-$$"
 
+# The processes of the session `setsid buildah run` started (buildah, tini, the server and its workers):
+# the container's processes get SIGTERM first (tini forwards it; a SIGTERM to buildah alone would
+# orphan them), then buildah; whatever is left after 30 s gets the signal $2.
+session_pids() { ps -eo pid=,sid=,stat= | awk -v s="$1" '$2 == s && $3 !~ /^Z/ {print $1}'; }
+stop_session() {
+  local sid=$1 last=$2 inner
+  inner=$(session_pids "$sid" | grep -vx "$sid" || true)
+  [ -n "$inner" ] && kill -TERM $inner 2>/dev/null
+  for _ in $(seq 1 30); do [ -z "$(session_pids "$sid" | grep -vx "$sid")" ] && break; sleep 1; done
+  kill -TERM "$sid" 2>/dev/null
+  for _ in $(seq 1 10); do [ -z "$(session_pids "$sid")" ] && return 0; sleep 1; done
+  [ "$last" = KILL ] && kill -KILL $(session_pids "$sid") 2>/dev/null
+  [ -z "$(session_pids "$sid")" ]
+}
+
 cleanup() {
   set +e
-  if [ -n "$RUN_PID" ] && kill -0 "$RUN_PID" 2>/dev/null; then
-    kill -TERM -- "-$RUN_PID" 2>/dev/null
-    for _ in $(seq 1 30); do kill -0 "$RUN_PID" 2>/dev/null || break; sleep 1; done
-    kill -KILL -- "-$RUN_PID" 2>/dev/null
-  fi
+  [ -n "$RUN_PID" ] && stop_session "$RUN_PID" KILL
   case "$ENGINE" in
     buildah) [ -n "$CTR" ] && buildah rm "$CTR" >/dev/null 2>&1
              [ -n "$MNT_CTR" ] && { buildah umount "$MNT_CTR" >/dev/null 2>&1; buildah rm "$MNT_CTR" >/dev/null 2>&1; } ;;
@@ -59,24 +71,22 @@ cleanup() {
 trap cleanup EXIT
 
 # ---- 1. configuration ---------------------------------------------------------------------------
-if [ "$ENGINE" = buildah ]; then
-  config=$(buildah inspect --type image --format '{{json .Docker.Config}}' "$IMAGE")
-else
-  config=$("$ENGINE" image inspect --format '{{json .Config}}' "$IMAGE")
-fi
-echo "$config" | "$HOST_PY" -c '
+if [ "$ENGINE" = buildah ]; then buildah inspect --type image "$IMAGE" >"$WORK/config.json"
+else "$ENGINE" image inspect "$IMAGE" >"$WORK/config.json"; fi
+"$HOST_PY" - "$WORK/config.json" <<'EOF' || die "image configuration"
 import json, sys
-c = json.load(sys.stdin)
+d = json.load(open(sys.argv[1]))
+c = d[0]["Config"] if isinstance(d, list) else d["Docker"]["config"]  # docker/podman | buildah
 user = (c.get("User") or "").split(":")[0]
-assert user not in ("", "root", "0"), f"the image runs as root (User={c.get(\"User\")!r})"
+assert user not in ("", "root", "0"), f"the image runs as root (User={c.get('User')!r})"
 hc = (c.get("Healthcheck") or {}).get("Test") or []
 assert hc and "health" in " ".join(hc), f"no health check in the image config: {hc}"
 assert "skyloc-role" in " ".join(c.get("Entrypoint") or []), c.get("Entrypoint")
 env = " ".join(c.get("Env") or [])
 for bad in ("SKYLOC_TOKEN=", "PIP_CERT=", "SSL_CERT_FILE=", "REQUESTS_CA_BUNDLE="):
     assert bad not in env, f"{bad} set in the image environment"
-print(f"image-smoke: user {c[\"User\"]}, health check {hc}, entrypoint {c[\"Entrypoint\"]}", file=sys.stderr)
-' || die "image configuration"
+sys.stderr.write(f"image-smoke: user {c['User']}, health check {hc}, entrypoint {c['Entrypoint']}\n")
+EOF
 
 # ---- 2. no secret in the image -------------------------------------------------------------------
 ROOTFS=$WORK/rootfs
@@ -132,7 +142,10 @@ mkdir -p "$WORK/data" "$WORK/in" "$WORK/secrets" "$WORK/out"
 chmod 0600 "$WORK/secrets/skyloc_token"
 if [ "$(id -u)" = 0 ]; then chown -R "$UID_IMG:$UID_IMG" "$WORK/data" "$WORK/in" "$WORK/secrets"
 else chmod 0777 "$WORK/data" "$WORK/in"; chmod 0644 "$WORK/secrets/skyloc_token"; fi
-VOLS=(-v "$WORK/data:/data" -v "$WORK/in:/in" -v "$WORK/secrets/skyloc_token:/run/secrets/skyloc_token:ro")
+# buildah run puts its own (per-run) volume on the image's VOLUME /data over a -v bind mount there,
+# so with buildah the data folder is bind-mounted beside it and named by SKYLOC_DATA_DIR
+if [ "$ENGINE" = buildah ]; then DATA_IN=/srv/smoke-data; else DATA_IN=/data; fi
+VOLS=(-v "$WORK/data:$DATA_IN" -v "$WORK/in:/in" -v "$WORK/secrets/skyloc_token:/run/secrets/skyloc_token:ro")
 SYNTH=(skyloc dem synth --preset mars --size 300 --res 2 --seed 16 --out /in/smoke_mars.tif)
 case "$ENGINE" in
   buildah)
@@ -150,9 +163,11 @@ case "$ENGINE" in
     uid=$(buildah run --isolation chroot "$CTR" -- id -u)
     [ "$uid" = "$UID_IMG" ] || die "processes in the image run as uid $uid, not $UID_IMG"
     # each `buildah run` has its own /tmp: the role file (for the health check) goes to the data volume
-    ROLE_ENV=SKYLOC_ROLE_FILE=/data/.skyloc-role
-    setsid buildah run --isolation chroot "${VOLS[@]}" -e "SKYLOC_PORT=$PORT" -e "$ROLE_ENV" "$CTR" -- \
-      tini -- skyloc-role api "${API_ARGS[@]}" >"$WORK/server.log" 2>&1 &
+    ROLE_ENV=SKYLOC_ROLE_FILE=$DATA_IN/.skyloc-role
+    # tini is not PID 1 under buildah run: -s makes it the subreaper of the server's processes
+    setsid "$(type -P buildah)" --storage-driver "$STORAGE_DRIVER" run --isolation chroot "${VOLS[@]}" \
+      -e "SKYLOC_PORT=$PORT" -e "SKYLOC_DATA_DIR=$DATA_IN" -e "$ROLE_ENV" "$CTR" -- \
+      tini -s -- skyloc-role api "${API_ARGS[@]}" >"$WORK/server.log" 2>&1 &
     RUN_PID=$! ;;
   *)
     "$ENGINE" run -d --name "$NAME" -p "127.0.0.1:$PORT:8000" "${VOLS[@]}" "$IMAGE" api "${API_ARGS[@]}" >/dev/null ;;
@@ -172,10 +187,10 @@ say "the image's HEALTHCHECK command passes (no token)"
 
 # ---- 5. stop -------------------------------------------------------------------------------------
 if [ -n "$RUN_PID" ]; then
-  kill -TERM -- "-$RUN_PID"
-  for _ in $(seq 1 30); do kill -0 "$RUN_PID" 2>/dev/null || break; sleep 1; done
-  kill -0 "$RUN_PID" 2>/dev/null && die "the service did not stop within 30 s of SIGTERM"
+  stop_session "$RUN_PID" TERM || die "the service did not stop within 40 s of SIGTERM"
   RUN_PID=""
+else
+  "$ENGINE" stop -t 30 "$NAME" >/dev/null || die "$ENGINE stop $NAME failed"
 fi
 if "$HOST_PY" -c "import socket,sys; socket.create_connection(('127.0.0.1', $PORT), timeout=2)" 2>/dev/null; then
   die "something still listens on port $PORT after the stop"
