@@ -115,8 +115,9 @@ def draw_cases(split: str, *, per_dem: int, seed: int = 11, presets=PRESETS, til
 
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}: use one of {', '.join(SPLITS)}")
-    cases = []
+    per = []
     for d_i, dem in enumerate(SPLITS[split]):
+        cases = []
         if not dem.startswith("procedural:") and not Path(dem).is_file():
             log.warning("DEM %s missing: skipped", dem)
             continue
@@ -138,7 +139,10 @@ def draw_cases(split: str, *, per_dem: int, seed: int = 11, presets=PRESETS, til
                         width=width, samples=samples)
             for preset in presets:
                 cases.append(LabelCase(preset=preset, **base))
-    return cases
+        per.append(cases)
+    # interleaved by DEM (pose 1 of every DEM, then pose 2, ...): a partial run covers every terrain
+    n = len(presets)
+    return [c for k in range(per_dem) for cases in per for c in cases[k * n:(k + 1) * n]]
 
 
 def true_skyline(terrain, case: LabelCase, *, n: int = TRUTH_N_AZIMUTH) -> tuple[np.ndarray, np.ndarray]:

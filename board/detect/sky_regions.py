@@ -65,6 +65,12 @@ class DetectorParams:
     wrap_margin_columns: int = 200
     use_colour: bool = True             # add log(blue / red) to the features of a colour image
     intensity_subpixel_separation: float = 1.5   # intensity separation above which the line is placed on the grey step
+    ground_broadening: float = 0.0      # ground spread at least this fraction of the sky-ground distance (re-fits)
+    sky_band_px: int = 0               # the sky is re-fitted on this many rows above the line (haze gradients)
+    smooth_evidence_cap: float = 0.5    # most sky evidence (log-likelihood ratio) smoothness alone may give
+    above_step_window_px: int = 3       # rows each side of a step looked for above the line
+    above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
+                                        # lowers the confidence from 1 to 0: the line may be a lower ridge
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
 
 
@@ -180,27 +186,42 @@ def _fit_sectors(f: np.ndarray, mask: np.ndarray, edges: np.ndarray, floor: floa
 
 
 def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float],
-               edges: np.ndarray, min_pixels: int, wrap: bool) -> tuple[np.ndarray, list]:
+               edges: np.ndarray, min_pixels: int, wrap: bool, caps: list[float | None] | None = None,
+               broaden: float = 0.0) -> tuple[np.ndarray, list]:
     """Log-likelihood ratio sky vs ground (float32, (H, W)), naive Bayes with one Gaussian per class,
     feature and azimuth sector.  Returns the LLR and, per feature, (mu_sky, sd_sky, mu_ground, sd_ground)
-    as per-column arrays plus the global fits."""
+    as per-column arrays plus the global fits.
+
+    caps : per feature, the largest sky evidence it may give (None: no cap).  Smoothness is capped:
+    a smooth patch may be sky or hazy distant terrain, while a rough one is ground.
+    """
     llr = np.zeros(feats[0].shape, dtype=np.float32)
     tmp = np.empty_like(llr)
     stats = []
-    for f, floor in zip(feats, floors):
+    caps = caps or [None] * len(feats)
+    for f, floor, cap in zip(feats, floors, caps):
         ms, ss, gs = _fit_sectors(f, sky, edges, floor, min_pixels, wrap)
         mg, sg, gg = _fit_sectors(f, ground, edges, floor, min_pixels, wrap)
         stats.append((ms, ss, mg, sg, gs, gg))
+        if broaden:
+            # the ground is everything that is not sky (near and far, hazy, shaded, sunlit): a value
+            # between the two classes is not sky (the likelihood only; the fits are returned as they are)
+            sg = np.maximum(sg, broaden * np.abs(mg - ms))
         if not (np.isfinite(gs[0]) and np.isfinite(gg[0])):
             continue
-        # llr += -0.5 ((f - ms) / ss)^2 + 0.5 ((f - mg) / sg)^2 + log(sg / ss), in place (float32)
+        # term = -0.5 ((f - ms) / ss)^2 + 0.5 ((f - mg) / sg)^2 + log(sg / ss), in place (float32)
+        term = np.zeros_like(llr) if cap is not None else llr
         for mu, sd, sign in ((ms, ss, -0.5), (mg, sg, 0.5)):
             np.subtract(f, mu.astype(np.float32)[None, :], out=tmp)
             tmp *= (1.0 / sd).astype(np.float32)[None, :]
             np.multiply(tmp, tmp, out=tmp)
             tmp *= np.float32(sign)
-            llr += tmp
-        llr += np.log(sg / ss).astype(np.float32)[None, :]
+            term += tmp
+        term += np.log(sg / ss).astype(np.float32)[None, :]
+        if cap is not None:
+            np.minimum(term, np.float32(cap), out=term)
+            llr += term
+            del term
     return llr, stats
 
 
@@ -219,9 +240,14 @@ def _otsu_split(blur: np.ndarray, seen: np.ndarray, top: np.ndarray, bottom: np.
     return thr, bool(np.median(t) >= np.median(b))
 
 
-def _bands_from_line(line: np.ndarray, H: int, margin: int) -> tuple[np.ndarray, np.ndarray]:
+def _bands_from_line(line: np.ndarray, H: int, margin: int, sky_band: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Sky rows above ``line - margin`` (only the ``sky_band`` nearest when > 0) and ground rows below
+    ``line + margin``: the sky just above the horizon, where a haze gradient makes it brightest."""
     rows = np.arange(H)[:, None]
-    return rows < (line[None, :] - margin), rows >= (line[None, :] + margin)
+    sky = rows < (line[None, :] - margin)
+    if sky_band > 0:
+        sky &= rows >= (line[None, :] - margin - sky_band)
+    return sky, rows >= (line[None, :] + margin)
 
 
 # -- the detector ---------------------------------------------------------------------------------
@@ -289,7 +315,9 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     line = None
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
-        p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap)
+        p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
+                              caps=[None, P.smooth_evidence_cap, None][:len(feats)],
+                              broaden=P.ground_broadening if it > 0 else 0.0)
         # sky probability, in place: 1 / (1 + exp(-llr))
         np.clip(p, -20.0, 20.0, out=p)
         np.negative(p, out=p)
@@ -337,7 +365,7 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
             if line.size < W:
                 line = np.concatenate([line, np.full(W - line.size, line[-1])])
         if it + 1 < max(1, P.iterations):
-            sky_cls, ground_cls = _bands_from_line(line.astype(np.float64), H, P.refit_margin_px)
+            sky_cls, ground_cls = _bands_from_line(line.astype(np.float64), H, P.refit_margin_px, P.sky_band_px)
             sky_cls &= seen
             ground_cls &= seen
             if sky_cls.sum() < 50 or ground_cls.sum() < 50:
@@ -470,10 +498,53 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     f_sky_sat, _ = _window_mean((grey >= P.saturation_level).astype(np.float32), sf, b, -R, 0)
     c_sat = np.minimum(c_sat, 1.0 - np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
-    conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen])
-    log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f",
-              np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5), np.mean(c_seen >= 0.5))
+    # a sky-to-ground step above the line: a hazy distant ridge the line passed under
+    s_above = _largest_step_above(proj, seen, b, P.above_step_window_px)
+    lo, hi = P.above_step_range
+    lo = max(lo, 6.0 * _pixel_noise(proj, seen, b) * math.sqrt(2.0 / P.above_step_window_px))
+    hi = max(hi, lo + 0.05)
+    c_above = 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1)
+    conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
+    log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
+              "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
+              np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5))
     return np.nan_to_num(conf, nan=0.0)
+
+
+def _pixel_noise(proj: np.ndarray, seen: np.ndarray, b: np.ndarray) -> float:
+    """Pixel noise of ``proj`` in the sky (robust: MAD of the vertical second difference over the seen
+    rows more than 5 rows above the line, divided by sqrt(6)); smooth gradients do not count."""
+    H, W = proj.shape
+    k = max(1, int(math.sqrt(H * W / 200_000)))
+    sub, sn = proj[::k, ::k], seen[::k, ::k]
+    d2 = sub[:-2] - 2.0 * sub[1:-1] + sub[2:]
+    rows = (np.arange(1, sub.shape[0] - 1) * k)[:, None]
+    ok = sn[:-2] & sn[1:-1] & sn[2:] & (rows < b[::k][None, :] - 5)
+    if ok.sum() < 100:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2[ok])) / math.sqrt(6.0))
+
+
+def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
+    """Per column, the largest sky-to-ground step of ``proj`` (mean of ``k`` rows below minus ``k`` rows
+    above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``.
+    0 where there is no such boundary."""
+    H, W = proj.shape
+    cs = np.zeros((H + 1, W), dtype=np.float64)
+    np.cumsum(np.where(seen, proj, 0.0), axis=0, out=cs[1:])
+    cn = np.zeros((H + 1, W), dtype=np.int32)
+    np.cumsum(seen, axis=0, out=cn[1:])
+    if H < 2 * k + 2:
+        return np.zeros(W)
+    r = np.arange(k, H - k + 1)[:, None]                 # boundary between rows r - 1 and r
+    mid = cs[k:H - k + 1]
+    step = (cs[2 * k:] - mid) - (mid - cs[:H - 2 * k + 1])  # k * (mean of rows [r, r+k) - mean of [r-k, r))
+    step /= k
+    full = (cn[2 * k:] - cn[:H - 2 * k + 1]) == 2 * k
+    del cs, cn
+    ok = full & (r + k <= b[None, :] - 1)
+    step = np.where(ok, step, 0.0)
+    return np.maximum(step.max(axis=0), 0.0)
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:
