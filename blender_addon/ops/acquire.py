@@ -42,5 +42,6 @@ class SKYLOC_OT_acquire(bpy.types.Operator):
                 sim.acquire(job, out, progress=lambda i, n, msg: prog.update(i / max(n, 1), msg))
         except Exception as exc:  # noqa: BLE001 (reported to the user)
             return bridge.fail(self, "Acquire", exc)
-        self.report({"INFO"}, f"acquisition written to {out}")
+        s.status = f"acquisition written to {out}"  # after the progress context, which ends with "done"
+        self.report({"INFO"}, s.status)
         return {"FINISHED"}

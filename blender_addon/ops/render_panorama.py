@@ -24,8 +24,9 @@ class SKYLOC_OT_render_panorama(bpy.types.Operator):
                 out = make_panorama(terrain, bridge.pose(s), bridge.out_dir(s) / "panorama",
                                     width=int(s.pano_width) // 2 * 2, binary=binary,
                                     preset=None if binary else s.preset, seed=int(s.seed), dem=s.dem, build=False)
-                prog.update(1.0, f"panorama written to {out}")
+                prog.update(1.0, "panorama written")
         except Exception as exc:  # noqa: BLE001 (reported to the user)
             return bridge.fail(self, "Render panorama", exc)
+        s.status = f"panorama written to {out}"  # after the progress context, which ends with "done"
         self.report({"INFO"}, s.status)
         return {"FINISHED"}

@@ -3,6 +3,7 @@ and unregisters cleanly, and its operators run end to end on a small GeoTIFF."""
 from __future__ import annotations
 
 import importlib
+import subprocess
 import sys
 
 import numpy as np
@@ -22,11 +23,73 @@ def _registered() -> dict[str, bool]:
 
 
 def test_importing_the_package_does_not_import_bpy():
-    import subprocess
-
-    code = "import sys, blender_addon, blender_addon.core.terrain_mesh, blender_addon.terrain; print('bpy' in sys.modules)"
+    code = ("import sys, blender_addon, blender_addon.core.terrain_mesh, blender_addon.terrain; "
+            "print('bpy' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _validate(path) -> subprocess.CompletedProcess:
+    """Blender's own extension validator, as shipped inside the bpy module (bl_pkg/cli/blender_ext.py)."""
+    from pathlib import Path
+
+    tool = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
+    return subprocess.run([sys.executable, str(tool), "validate", str(path)], capture_output=True, text=True)
+
+
+def test_the_extension_passes_blenders_validator(tmp_path):
+    import zipfile
+
+    from blender_addon.packaging import build_extension
+
+    res = _validate(build_extension(tmp_path))
+    assert res.returncode == 0, res.stdout + res.stderr
+    # the validator is not a rubber stamp: the manifest as it was (69- and 74-character fields) fails it
+    bad = tmp_path / "bad"
+    with zipfile.ZipFile(build_extension(tmp_path)) as z:
+        z.extractall(bad)
+    m = (bad / "blender_manifest.toml").read_text()
+    (bad / "blender_manifest.toml").write_text(m.replace(
+        'tagline = "', 'tagline = "Simulate rover NavCam views and skyline databases from planetary DEMs" #', 1))
+    res = _validate(bad)
+    assert res.returncode != 0 and "tagline" in res.stdout + res.stderr
+
+
+@pytest.mark.slow
+def test_the_wheel_build_bundles_every_wheel_it_needs(tmp_path):
+    """--wheel: the zip validates and holds, for this platform, a wheel for every requirement of every wheel
+    in it (the skyloc wheel's dependencies, theirs...), except what Blender ships (numpy)."""
+    import email
+    import tomllib
+    import zipfile
+    from pathlib import Path
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    from blender_addon.packaging import PROVIDED_BY_BLENDER, blender_platform, build_extension, dist_name
+
+    zip_path = build_extension(tmp_path, wheel=True)
+    res = _validate(zip_path)
+    assert res.returncode == 0, res.stdout + res.stderr
+    with zipfile.ZipFile(zip_path) as z:
+        manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+        wheels = [n for n in z.namelist() if n.startswith("wheels/")]
+        assert sorted(manifest["wheels"]) == sorted(f"./{n}" for n in wheels)
+        assert manifest["platforms"] == [blender_platform()]
+        have = {canonicalize_name(dist_name(Path(n))) for n in wheels}
+        assert "skyloc" in have and not have & PROVIDED_BY_BLENDER
+        missing = set()
+        for n in wheels:
+            with zipfile.ZipFile(z.open(n)) as w:
+                meta = next(m for m in w.namelist() if m.endswith(".dist-info/METADATA"))
+                for line in email.message_from_bytes(w.read(meta)).get_all("Requires-Dist") or []:
+                    req = Requirement(line)
+                    if req.marker is None or req.marker.evaluate({"extra": ""}):
+                        name = canonicalize_name(req.name)
+                        if name not in have and name not in PROVIDED_BY_BLENDER:
+                            missing.add((n, name))
+    assert not missing
 
 
 def test_installs_enables_and_disables_as_an_extension(tmp_path):
@@ -109,6 +172,8 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
         assert (bpy.context.scene.render.resolution_x, s.mast_height_m) == (1024, pytest.approx(2.05))
         s.pano_width = 128
         assert bpy.ops.skyloc.render_panorama() == {"FINISHED"}
+        # the panel says where the result went
+        assert s.status == f"panorama written to {tmp_path / 'out' / 'panorama'}"
         pano = load_panorama(tmp_path / "out" / "panorama")
         assert pano.geometry.width == 128 and pano.truth.heading_deg == 30.0
         s.frames, s.arc_deg, s.frame_width, s.preset = 2, 130.0, 48, "binary"
@@ -116,6 +181,7 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
         assert bpy.ops.skyloc.acquire() == {"FINISHED"}
         # the acquisition adopted the terrain built above (Simulator.adopt): no session reset, no rebuild
         assert {o.as_pointer() for o in bpy.data.collections["SkylocTerrain"].objects} == terrain_objects
+        assert s.status == f"acquisition written to {tmp_path / 'out' / 'acquisition'}"
         acq = load_acquisition(tmp_path / "out" / "acquisition")
         assert len(acq.frames) == 2
         s.db_size_m, s.db_step_m = 20.0, 20.0
