@@ -5,14 +5,18 @@ export BLENDER_USER_RESOURCES ?= $(CURDIR)/.cache/blender
 export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
-.PHONY: install test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
+.PHONY: install lint test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
 	detector-labels bench-detector campaign campaign-ci \
 	image image-smoke multinode-smoke
 
 install:
 	bash scripts/install.sh
 
-test: install
+# ruff with the project's rules (pyproject.toml [tool.ruff]); `make test` runs it first
+lint: install
+	$(VENV)/bin/ruff check .
+
+test: install lint
 	$(PY) -m pytest -q
 
 test-fast: install
