@@ -3,7 +3,7 @@
 A Dask scheduler, two Dask workers and the API server are started by the image's entry point
 (``scripts/image_entrypoint.sh``, the ``scheduler`` / ``worker`` / ``api`` roles, exactly the commands
 compose.yaml runs), with Dask TLS from a CA and node certificate made by the image's ``tls`` role.  A database
-job is split across both workers, one worker (nanny and process) is killed with SIGKILL mid-job, the job
+job is split across both workers (36 tiles), one worker (nanny and process) is killed with SIGKILL mid-job, the job
 finishes on the other, and the database equals the single-process render of ``skyloc db render``'s code
 path (:func:`render_service.dbrender.render_database`) tile for tile.  A client without the certificates
 cannot connect to the scheduler.
@@ -31,9 +31,9 @@ from render_service.store import JobStore
 pytestmark = [pytest.mark.service, pytest.mark.slow, pytest.mark.timeout(240)]
 
 ENTRY = H.REPO / "scripts" / "image_entrypoint.sh"
-# 60 m at 2 m: 31 x 31 positions in tiles of 4 -> 8 x 8 = 64 tiles, 72 azimuths (5 degrees)
-JOB = {"kind": "skyline_db", "size_m": 60, "step_m": 2, "azimuths": 72, "tile_size": 4, "camera_height_m": 1.5}
-N_TILES = 64
+# 40 m at 2 m: 21 x 21 positions in tiles of 4 -> 6 x 6 = 36 tiles, 36 azimuths (10 degrees)
+JOB = {"kind": "skyline_db", "size_m": 40, "step_m": 2, "azimuths": 36, "tile_size": 4, "camera_height_m": 1.5}
+N_TILES = 36
 
 
 def make_tls(folder: Path) -> dict[str, Path]:
@@ -231,7 +231,7 @@ def test_job_split_across_two_workers_survives_a_killed_worker(deployment, servi
     from render_service.renderers.base import RenderSpec
 
     ref = render_database(service_dem.path, center_xy=tuple(dem["center"]), size_m=JOB["size_m"],
-                          step_m=JOB["step_m"], spec=RenderSpec(camera_height_m=1.5, n_azimuth=72),
+                          step_m=JOB["step_m"], spec=RenderSpec(camera_height_m=JOB["camera_height_m"], n_azimuth=JOB["azimuths"]),
                           out=d["work"] / "single.zarr", tile_size=JOB["tile_size"], progress=False)
     assert [t.key for t in ref.tiles] == [t.key for t in db.tiles]
     for t in ref.tiles:
