@@ -1,4 +1,3 @@
-# syntax=docker/dockerfile:1
 # skyloc render service image: Debian 12 (Python 3.11, GDAL 3.6 from apt) + the skyloc package with its
 # `ground` extra (FastAPI service, Dask, numba ray-marcher).  No bpy: the Blender renderer and
 # dataset jobs answer 501 not_available on this image; the raymarch renderer does everything else.
