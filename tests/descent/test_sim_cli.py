@@ -56,8 +56,8 @@ def test_sim_descent_refuses_bad_input_with_the_fix(tmp_path, args, message):
 @pytest.mark.slow
 def test_descent_set_on_dask_is_resumable(tmp_path):
     out = tmp_path / "set"
-    args = ["sim", "descent-set", "--trajectories", "2,5", "--trials", "2", "--frames", "2", *SMALL, "--terrain-size", "120",
-            "--workers", "1", "--out", str(out)]
+    args = ["sim", "descent-set", "--trajectories", "2,5", "--trials", "2", "--frames", "2", *SMALL,
+            "--terrain-size", "120", "--workers", "1", "--out", str(out)]
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 0, r.output
     dirs = sorted(p.relative_to(out).as_posix() for p in out.glob("traj*/trial*"))

@@ -93,9 +93,10 @@ def test_both_cameras_see_the_same_ground_point_at_the_same_pixel(tmp_path):
             uu, vv = cam.model.pixel_grid()
             np.testing.assert_allclose(u, uu, atol=1e-6)
             np.testing.assert_allclose(v, vv, atol=1e-6)
-        # the stored frames are those renders: thermal counts are the sampled temperature
-        np.testing.assert_array_equal(seq.load_frame("thermal", i),
-                                      seq.cameras["thermal"].radiometric.to_counts(out["thermal"], 14))
+        # the stored frames are those renders (the pose read back from the TUM file is rounded to 1e-9:
+        # a count may flip at a rounding boundary)
+        stored = seq.load_frame("thermal", i).astype(int)
+        assert np.abs(stored - seq.cameras["thermal"].radiometric.to_counts(out["thermal"], 14)).max() <= 1
 
 
 def test_altimeter_equals_an_independent_ray_cast(terrain):
