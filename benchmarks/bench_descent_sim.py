@@ -56,6 +56,9 @@ def main() -> None:
     import cv2
 
     from blender_addon.descent.simulate import DescentConfig, trial_motion
+    from board.descent.sequence import png_write_params
+
+    PNG_PARAMS = png_write_params()
 
     cfg = DescentConfig(trajectory=args.trajectory)
     renderer, setup_s = _setup(cfg)
@@ -74,8 +77,8 @@ def main() -> None:
             v = cfg.visible_sensor.counts(out["visible"], rng)
             th = cfg.thermal_sensor.counts(out["thermal"], rng)
             c2 = time.process_time()
-            cv2.imwrite(os.path.join(tmp, "v.png"), v, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-            cv2.imwrite(os.path.join(tmp, "t.png"), th, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+            cv2.imwrite(os.path.join(tmp, "v.png"), v, PNG_PARAMS)
+            cv2.imwrite(os.path.join(tmp, "t.png"), th, PNG_PARAMS)
             c3 = time.process_time()
             parts["render"] += c1 - c0
             parts["sensors"] += c2 - c1
