@@ -10,62 +10,65 @@ from pathlib import Path
 
 import click
 
-from board.cliargs import parse_xy
+from blender_addon.cli_options import body_option, crs_option, dem_option, site
+from blender_addon.core.cameras import PRESETS as CAMERAS
+from blender_addon.core.degrade import PRESETS as LOOKS
 from board.errors import InvalidInputError
+from board.progress import progress_bar
 
 log = logging.getLogger(__name__)
 
 
 @click.command("acquire")
-@click.option("--dem", required=True, help="DEM file, or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
+@dem_option()
 @click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
-@click.option("--crs", default=None, help="CRS of --at when it is not the DEM's (e.g. EPSG:4326).")
+@crs_option()
 @click.option("--heading", "heading_deg", type=float, required=True, help="Heading, degrees clockwise from grid north.")
 @click.option("--pitch", "pitch_deg", type=float, default=0.0, show_default=True, help="Pitch, degrees (nose up +).")
 @click.option("--roll", "roll_deg", type=float, default=0.0, show_default=True,
               help="Roll, degrees (right side down +).")
-@click.option("--camera", type=click.Choice(["exomars", "mars2020", "magellium"]), default="exomars",
+@click.option("--camera", type=click.Choice(sorted(CAMERAS)), default="exomars",
               show_default=True, help="NavCam preset (report annex).")
 @click.option("--width", type=int, default=None, help="Render the preset at this width (same field of view).")
 @click.option("--frames", type=int, default=13, show_default=True, help="Number of frames of the pan-tilt plan.")
 @click.option("--arc", "arc_deg", type=float, default=360.0, show_default=True,
               help="Azimuth arc covered, degrees (360 = full panorama, else centred on the heading).")
 @click.option("--tilt", "tilt_deg", type=float, default=0.0, show_default=True, help="Tilt of every frame, degrees.")
-@click.option("--preset", type=click.Choice(["binary", "clean", "realistic", "distorted"]), default="realistic",
-              show_default=True,
-              help="Look and degradations (the report's noise levels: binary, realistic, distorted).")
+@click.option("--preset", type=click.Choice(list(LOOKS)), default="realistic", show_default=True,
+              help="Look and degradations (the report's noise levels: binary, realistic, distorted; "
+                   "realistic-<body> for the Earth, the Moon, Europa; 'realistic' is the Mars look).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures, render and noise.")
 @click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples per pixel.")
 @click.option("--radius", "radius_m", type=float, default=None,
               help="Keep terrain up to this distance (m) beyond the site (default: the whole DEM).")
-@click.option("--body", default=None, help="Body (earth, mars, moon, europa) or radius in metres, if the DEM lacks it.")
+@body_option()
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output acquisition folder.")
 def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_deg: float, roll_deg: float,
                 camera: str, width: int | None, frames: int, arc_deg: float, tilt_deg: float, preset: str,
                 seed: int, samples: int, radius_m: float | None, body: str | None, out_dir: str) -> None:
     """Render a simulated NavCam acquisition (frames + acquisition.json with ground truth)."""
-    from tqdm import tqdm
-
     from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator, wrap_heading
     from blender_addon.core.cameras import get_preset
-    from blender_addon.core.degrade import get_degradation
+    from blender_addon.core.degrade import check_look_body, get_degradation
     from blender_addon.core.plans import plan_frames
-    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
 
     if samples < 1:
         raise InvalidInputError(f"--samples must be >= 1, got {samples}")
     cam = get_preset(camera, width=width)
     plan = plan_frames(frames, arc_deg, cam.hfov_deg, tilt_deg=tilt_deg)
     deg = get_degradation(preset)
-    path = resolve_dem(dem)
-    x, y = to_metric_xy(*parse_xy(at), dem_path=path, crs=crs, body=body)
+    c = site(dem, at, "--at", crs=crs, body=body)
+    x, y = c.xy_m
     rock_r = deg.rocks.radius_m if deg.rocks.density_per_m2 > 0 else 0.0
-    sim = Simulator(path, (x, y), grid_half_m=max(50.0, rock_r + 20.0), max_radius_m=radius_m, body=body)
-    sim.dem_spec = str(dem)
-    job = AcquisitionJob(Pose(x, y, wrap_heading(heading_deg), pitch_deg, roll_deg), cam, plan, deg, seed=seed,
-                         samples=samples)
-    with tqdm(total=plan.n_frames, desc="sim acquire", unit="frame", disable=None) as bar:
-        out = sim.acquire(job, out_dir, progress=lambda done, total, msg: bar.update(done - bar.n))
+    with progress_bar("sim acquire", unit="frame") as progress:
+        progress(0, plan.n_frames, "building the terrain and the scene")
+        sim = Simulator(c.dem_path, (x, y), grid_half_m=max(50.0, rock_r + 20.0), max_radius_m=radius_m, body=body)
+        sim.dem_spec = str(dem)
+        check_look_body(deg, sim.terrain.body.name)
+        job = AcquisitionJob(Pose(x, y, wrap_heading(heading_deg), pitch_deg, roll_deg), cam, plan, deg, seed=seed,
+                             samples=samples)
+        progress(0, plan.n_frames, "dressing the scene, rendering frame 1")
+        out = sim.acquire(job, out_dir, progress=progress)
     click.echo(f"wrote {Path(out)}: {plan.n_frames} {cam.width}x{cam.height} {preset} frames ({cam.name}) at "
                f"({x:.2f}, {y:.2f}) m, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
 
@@ -82,8 +85,6 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
 def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume: bool, check: bool,
                 limit: int | None, width: int | None, samples: int | None) -> None:
     """Render the test sets of a scene file (e.g. scenes/robustness.toml) with their manifests."""
-    from tqdm import tqdm
-
     from blender_addon.core.scene_spec import load_scene
 
     scene = load_scene(scene_toml)
@@ -94,12 +95,7 @@ def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume:
         return
     from blender_addon.core.dataset import generate_dataset
 
-    with tqdm(desc="sim dataset", unit="acq", disable=None) as bar:
-        def progress(done: int, total: int, msg: str) -> None:
-            bar.total = total
-            bar.set_postfix_str(msg)
-            bar.update(done - bar.n)
-
+    with progress_bar("sim dataset", unit="acq") as progress:
         path = generate_dataset(scene_toml, out_dir, progress=progress, sets=list(sets) or None,
                                 resume=not no_resume, limit=limit, width=width, samples=samples)
     click.echo(f"wrote {path}")

@@ -12,8 +12,9 @@ Same scene file, same seed: same images (Cycles' sampling seed, rocks, textures 
 noise all derive from it).  An interrupted run resumes: an acquisition whose folder already
 holds a manifest made from the same job (``meta.job_key``) is kept.
 
-``generate_dataset`` is what the render service runs for dataset jobs; ``progress`` is called
-as ``progress(done, total, message)`` after each acquisition (``done`` counts acquisitions).
+``generate_dataset`` is what the render service runs for dataset jobs; ``progress`` follows
+:mod:`board.progress`: ``progress(done, total, message)`` with ``done`` counting acquisitions, called
+after each acquisition and, with the current step in ``message``, while one is built and rendered.
 """
 from __future__ import annotations
 
@@ -25,12 +26,14 @@ import shutil
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 from blender_addon.core.acquire import AcquisitionJob, Simulator, job_dict
+from blender_addon.core.degrade import check_look_body
 from blender_addon.core.scene_spec import SceneSpec, SiteSpec, load_scene, set_jobs, set_seed
 from board.acquisition import ACQUISITION_MANIFEST
 from board.errors import InvalidInputError
+from board.progress import Progress, report
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +42,6 @@ DATASET_VERSION = 1
 DATASET_MANIFEST = "dataset.json"
 SET_MANIFEST = "manifest.json"
 
-Progress = Callable[[int, int, str], None]
 
 
 def _write_json(path: Path, doc: dict) -> None:
@@ -165,6 +167,7 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
         from blender_addon.terrain.dem import dem_info
 
         info = dem_info(dem_path, body=site.body)
+        warned: set[str] = set()
         sim: Simulator | None = None   # built only when something must be rendered
         for s in site_sets:
             set_dir = out / s.name
@@ -178,18 +181,23 @@ def generate_dataset(scene_toml: str | os.PathLike, out_dir: str | os.PathLike, 
                 if resume and _done(folder, key):
                     log.info("%s exists (same job): kept", folder)
                 else:
+                    if job.degradation.name not in warned:
+                        warned.add(job.degradation.name)
+                        check_look_body(job.degradation, info.body.name)
                     if sim is None:
+                        report(progress, done, total, f"building the terrain of site {site.name}")
                         sim = Simulator(dem_path, site.center, grid_half_m=_grid_half(scene, site, all_jobs),
                                         max_radius_m=site.max_radius_m, body=site.body, cache_dir=cache)
                         sim.dem_spec = dem_spec
                     job = AcquisitionJob(job.pose, job.camera, job.plan, job.degradation, job.seed, job.samples,
                                          job.denoise, job.imu_sigma_deg, {**job.meta, "job_key": key})
-                    sim.acquire(job, folder)
+                    step = f"{s.name} {i + 1}/{len(jobs_by_set[s.name])}"
+                    sim.acquire(job, folder, progress=lambda k, n, msg, step=step: report(
+                        progress, done, total, f"{step}: {msg or f'frame {k}/{n}'}"))
                 entries.append({"dir": f"{s.name}/{folder.name}", "job_key": key, **job_dict(job),
                                 "imu_sigma_deg": job.imu_sigma_deg})
                 done += 1
-                if progress is not None:
-                    progress(done, total, f"{s.name} {i + 1}/{len(jobs_by_set[s.name])}")
+                report(progress, done, total, f"{s.name} {i + 1}/{len(jobs_by_set[s.name])}")
             doc = {"format": DATASET_FORMAT + "-set", "version": DATASET_VERSION, "name": s.name,
                    "description": s.description, "site": site.name, "camera": scene.cameras[s.camera].name,
                    "plan": s.plan, "degradations": {d: (scene.degradations.get(d) or _preset(d)).to_dict()

@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 
 from board.camera import CameraModel
+from board.conventions import BODIES
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -139,9 +140,12 @@ class Degradation:
 
     binary : terrain white, sky black, nothing else (the report's noise level 1)
     regolith_albedo : mean regolith albedo; albedo_variation : relative spread of its texture
+    body : the body the look is made for ("mars", "earth", "moon", "europa"), or None for a look that fits
+        any body (binary, clean); :func:`check_look_body` warns when it dresses another body's terrain
     """
 
     name: str = "clean"
+    body: str | None = None
     binary: bool = False
     regolith_albedo: float = 0.22
     albedo_variation: float = 0.35
@@ -188,6 +192,10 @@ def _merge(obj, d: dict, where: str):
             if isinstance(current, int) and not float(value).is_integer():
                 raise InvalidInputError(f"{where}.{key}: expected a whole number, got {value!r}")
             changes[key] = int(value) if isinstance(current, int) else float(value)
+        elif key == "body" and isinstance(obj, Degradation):
+            if value is not None and str(value).strip().lower() not in BODIES:
+                raise InvalidInputError(f"{where}.body: expected one of {', '.join(BODIES)}, got {value!r}")
+            changes[key] = None if value is None else str(value).strip().lower()
         elif isinstance(current, str):
             changes[key] = str(value)
         else:  # pragma: no cover - all fields are covered above
@@ -232,18 +240,41 @@ def _validate(obj, where: str) -> None:
         need(0 <= obj.albedo_variation <= 1, "albedo_variation must be in [0, 1]")
 
 
-#: The report's noise levels and the clean look (``--preset``).
+_SENSOR = SensorParams(full_well_e=12_000.0, read_noise_e=15.0)
+#: sunlight at each body relative to Mars (inverse square of the distance to the Sun: 1.52 AU for Mars,
+#: 1 AU for the Earth and the Moon, 5.2 AU for Europa)
+_SUN_REL_MARS = {"mars": 1.0, "earth": 1.52 ** 2, "moon": 1.52 ** 2, "europa": (1.52 / 5.2) ** 2}
+
+#: The report's noise levels and the clean look (``--preset``); "realistic" is the Mars look, and each
+#: body has its own: "realistic-earth" (clear sky, brighter sun), "realistic-moon" (no atmosphere, dark
+#: regolith, albedo 0.12), "realistic-europa" (no atmosphere, bright ice, albedo 0.6, sunlight 1/12 of Mars').
+#: The airless looks use the clear sky of the dressing (no dust), not a black one.
 PRESETS: dict[str, Degradation] = {
     "binary": Degradation(name="binary", binary=True, sky=SkyParams(clear=True, dust_tau=0.0)),
     "clean": Degradation(name="clean", sky=SkyParams(clear=True, dust_tau=0.0)),
+    "realistic-earth": Degradation(
+        name="realistic-earth", body="earth", regolith_albedo=0.25,
+        sun=SunParams(strength=_SUN_REL_MARS["earth"]), sky=SkyParams(clear=True, dust_tau=0.0),
+        rocks=RockParams(density_per_m2=0.3, d_min_m=0.04, d_max_m=1.0, exponent=2.5, radius_m=35.0),
+        sensor=_SENSOR),
+    "realistic-moon": Degradation(
+        name="realistic-moon", body="moon", regolith_albedo=0.12, albedo_variation=0.25,
+        sun=SunParams(strength=_SUN_REL_MARS["moon"]), sky=SkyParams(clear=True, dust_tau=0.0),
+        rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
+        sensor=_SENSOR),
+    "realistic-europa": Degradation(
+        name="realistic-europa", body="europa", regolith_albedo=0.6, albedo_variation=0.2,
+        sun=SunParams(strength=_SUN_REL_MARS["europa"]), sky=SkyParams(clear=True, dust_tau=0.0),
+        rocks=RockParams(density_per_m2=0.2, d_min_m=0.04, d_max_m=1.0, exponent=2.5, radius_m=35.0),
+        sensor=_SENSOR),
     "realistic": Degradation(
-        name="realistic",
+        name="realistic", body="mars",
         sky=SkyParams(dust_tau=0.6),
         rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
         sensor=SensorParams(full_well_e=12_000.0, read_noise_e=15.0),
     ),
     "distorted": Degradation(
-        name="distorted",
+        name="distorted", body="mars",
         sky=SkyParams(dust_tau=0.6),
         rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
         lens=LensParams(k1=-0.12, k2=0.02, p1=4e-4, p2=-3e-4, k3=0.0, dispersion=0.0025, blur_px=0.6,
@@ -254,11 +285,32 @@ PRESETS: dict[str, Degradation] = {
 
 
 def get_degradation(name: str) -> Degradation:
-    """A preset by name (binary, clean, realistic, distorted)."""
+    """A preset by name (see :data:`PRESETS`)."""
     key = str(name).strip().lower()
     if key not in PRESETS:
         raise InvalidInputError(f"unknown degradation preset {name!r}: use one of {', '.join(PRESETS)}")
     return PRESETS[key]
+
+
+def look_for_body(body: str) -> str | None:
+    """The name of the realistic look made for ``body`` (a body name), or None when there is none."""
+    b = str(body).strip().lower()
+    for name, d in PRESETS.items():
+        if d.body == b and name.startswith("realistic"):
+            return name
+    return None
+
+
+def check_look_body(deg: Degradation, body: str) -> str | None:
+    """A warning (logged, and returned) when ``deg`` is made for another body than ``body``; None when it fits."""
+    if deg.body is None or deg.body == str(body).strip().lower():
+        return None
+    other = look_for_body(body)
+    msg = (f"the look {deg.name!r} is made for {deg.body.capitalize()} (sky, sunlight, regolith) but the terrain "
+           f"is on {str(body).capitalize()}: " + (f"use the look {other!r}" if other else
+                                                  "use 'clean' or 'binary', or a look of your own"))
+    log.warning("%s", msg)
+    return msg
 
 
 # --------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ class SKYLOC_OT_acquire(bpy.types.Operator):
     def execute(self, context):
         from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator
         from blender_addon.core.cameras import get_preset
-        from blender_addon.core.degrade import get_degradation
+        from blender_addon.core.degrade import check_look_body, get_degradation
         from blender_addon.core.plans import plan_frames
 
         s = bridge.settings(context)
@@ -38,6 +38,9 @@ class SKYLOC_OT_acquire(bpy.types.Operator):
                 job = AcquisitionJob(Pose(s.site_x, s.site_y, s.heading_deg, s.pitch_deg, s.roll_deg), preset,
                                      plan_frames(int(s.frames), float(s.arc_deg), preset.hfov_deg),
                                      get_degradation(s.preset), seed=int(s.seed))
+                look = check_look_body(job.degradation, sim.terrain.body.name)
+                if look:
+                    self.report({"WARNING"}, look)
                 out = bridge.out_dir(s) / "acquisition"
                 sim.acquire(job, out, progress=lambda i, n, msg: prog.update(i / max(n, 1), msg))
         except Exception as exc:  # noqa: BLE001 (reported to the user)

@@ -31,7 +31,13 @@ def test_every_set_has_validated_acquisitions_with_truth(tiny):
     doc = json.loads(path.read_text())
     assert doc["format"] == "skyloc-dataset" and doc["seed"] == scene.seed
     assert [s["name"] for s in doc["sets"]] == [s.name for s in scene.sets]
-    assert calls[-1][:2] == (4, 4) and [c[0] for c in calls] == [1, 2, 3, 4]
+    assert calls[-1][:2] == (4, 4) and all(t == 4 for _, t, _ in calls)
+    # one progress protocol: the count of finished acquisitions never goes back, and while one is
+    # built and rendered the message says what runs (the terrain first, then frame by frame)
+    done = [d for d, _, _ in calls]
+    assert done == sorted(done) and set(done) == {0, 1, 2, 3, 4}
+    assert calls[0] == (0, 4, "building the terrain of site hills")
+    assert any(m.startswith("REF 1/") and "frame" in m for d, _, m in calls if d == 0)
     assert doc["sites"]["hills"]["dem"] == scene.sites["hills"].dem and len(doc["sites"]["hills"]["dem_sha256"]) == 64
     for s in scene.sets:
         manifest = json.loads((out / s.name / "manifest.json").read_text())

@@ -186,3 +186,35 @@ def test_bilinear_matches_a_pixel_by_pixel_reference():
     assert out.dtype == np.float32 and out[0, 0].tolist() == [0.0, 0.0, 0.0]
     np.testing.assert_allclose(out, ref, atol=1e-6)
     np.testing.assert_allclose(bilinear(img[..., 1], u, v), ref[..., 1], atol=1e-6)
+
+
+def test_every_body_has_its_look_and_a_foreign_look_is_named(caplog):
+    """A realistic look per body (Earth, Mars, Moon, Europa); a look used on another body's terrain is warned
+    about with the look to use; body-free looks (binary, clean) fit any body."""
+    import logging
+
+    from blender_addon.core.degrade import PRESETS, check_look_body, look_for_body
+    from board.conventions import BODIES
+
+    for body in BODIES:
+        name = look_for_body(body)
+        assert name is not None and PRESETS[name].body == body
+        assert check_look_body(PRESETS[name], body) is None
+    assert look_for_body("mars") == "realistic"
+    with caplog.at_level(logging.WARNING, logger="blender_addon.core.degrade"):
+        msg = check_look_body(PRESETS["realistic"], "earth")
+    assert "made for Mars" in msg and "'realistic-earth'" in msg and msg in caplog.text
+    assert check_look_body(PRESETS["binary"], "europa") is None and check_look_body(PRESETS["clean"], "moon") is None
+    # sunlight follows the inverse square of the distance to the Sun (semi-major axes 1.000, 1.524, 5.203 AU)
+    sun = {b: PRESETS[look_for_body(b)].sun.strength for b in BODIES}
+    assert sun["earth"] / sun["mars"] == pytest.approx(1.524 ** 2, rel=0.01)
+    assert sun["europa"] / sun["mars"] == pytest.approx((1.524 / 5.203) ** 2, rel=0.02)
+    assert sun["moon"] == sun["earth"]
+
+
+def test_a_look_names_a_known_body():
+    from blender_addon.core.degrade import Degradation
+
+    assert Degradation.from_dict({"body": "Moon"}).body == "moon"
+    with pytest.raises(InvalidInputError, match="body: expected one of earth, mars, moon, europa"):
+        Degradation.from_dict({"body": "pluto"})
