@@ -63,6 +63,10 @@ bench-blender: install
 bench-service: install
 	$(PY) -m benchmarks.bench_service
 
+# issue 14: descent simulator, frame pairs per second at 640 x 480 (see docs/benchmarks.md)
+bench-descent-sim: install
+	nice -n 10 $(PY) -m benchmarks.bench_descent_sim --frames 30
+
 # The service image (not part of `make test`: minutes of apt and pip); see docs/service.md.
 image:
 	bash scripts/image_build.sh
