@@ -67,6 +67,10 @@ bench-service: install
 bench-descent-sim: install
 	nice -n 10 $(PY) -m benchmarks.bench_descent_sim --frames 30
 
+# issue 15: descent filter, one step per frame pair at N = 64 on one core, peak memory
+bench-descent-filter: install
+	nice -n 10 $(PY) -m benchmarks.bench_descent_filter --frames 12
+
 # The service image (not part of `make test`: minutes of apt and pip); see docs/service.md.
 image:
 	bash scripts/image_build.sh
