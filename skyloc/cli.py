@@ -28,6 +28,7 @@ PLUGIN_MODULES = (
     "render_service.cli_descent_eval",  # skyloc descent eval
     "board.cli_extract",          # skyloc extract
     "board.cli_locate",           # skyloc locate
+    "board.cli_descent",          # skyloc descent run (adds to the descent group)
 )
 
 

@@ -76,3 +76,20 @@ def test_eval_refuses_to_mix_protocols_in_one_folder(tmp_path):
                                                   "modes": ["visible"], "terrain": "procedural:europa:1", "seed": 0}))
     res = CliRunner().invoke(main, ["descent", "eval", "--profile", "ci", "--out", str(out), "--local"])
     assert res.exit_code != 0 and "another --out" in res.output
+
+
+@pytest.mark.slow
+def test_descent_run_on_one_sequence_reproduces_the_evaluation_run(evaluated, tmp_path):
+    from render_service.descent_eval.tasks import filter_seed, sequence_dir
+
+    out, _ = evaluated
+    est = tmp_path / "est.tum"
+    res = CliRunner().invoke(main, ["descent", "run", str(sequence_dir(out, 3, 1)), "--mode", "thermal", "--seed",
+                                    str(filter_seed(0, 3, 1)), "--out", str(est)])
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.output.strip().splitlines()[-1])
+    ref = json.loads((run_dir(out, 3, 1, "thermal") / "metrics.json").read_text())
+    assert m["frames"] == 3 and m["E_percent"] == pytest.approx(ref["E_percent"], abs=1e-3)
+    assert est.read_text() == (run_dir(out, 3, 1, "thermal") / "estimate.tum").read_text()
+    bad = CliRunner().invoke(main, ["descent", "run", str(tmp_path)])
+    assert bad.exit_code != 0 and "sequence.json" in bad.output
