@@ -30,7 +30,7 @@ from board.descent.ekf import DescentEKF, FilterCamera, FilterConfig
 from board.descent.features import SiftDetector, active_search
 from board.descent.imu_propagation import ImuNoise, VehicleState
 from board.descent.landmarks import sample_new
-from board.descent.quaternion import exp_so3, log_so3, quat_from_rot, quat_from_xyzw, quat_to_xyzw, rot_from_quat
+from board.descent.quaternion import log_so3, quat_from_rot, quat_from_xyzw, quat_to_xyzw, rot_from_quat
 from board.descent.ransac import Match, one_point_ransac
 from board.errors import InvalidInputError
 
@@ -293,5 +293,4 @@ def run_sequence(seq, mode: str, *, seed: int = 0, config: RunConfig | None = No
                      nav.alt_ok, nav.alt_gated)
 
 
-__all__ = ["MODES", "RunConfig", "RunResult", "DescentNavigator", "run_sequence", "write_tum", "pose_error",
-           "exp_so3"]
+__all__ = ["MODES", "RunConfig", "RunResult", "DescentNavigator", "run_sequence", "write_tum", "pose_error"]
