@@ -49,9 +49,21 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
     Returns the path written (atomically).
     """
     plt = _plt()
+    out = Path(out)
+    fig = draw_fix(fix, truth=truth, half_window=half_window)
+    tmp = out.with_name(out.name + ".part.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, out)
+    return out
+
+
+def draw_fix(fix, *, truth: tuple[float, float] | None = None, half_window: int = 40):
+    """The figure :func:`plot_fix` writes (matplotlib Figure; axes[0] the map, axes[1] the skyline overlay,
+    the map's inset ``axes[0].child_axes[0]``).  Map axes: metres east and north of the fix."""
+    plt = _plt()
     from matplotlib.colors import ListedColormap  # noqa: PLC0415
 
-    out = Path(out)
     fig, (ax_map, ax_sky) = plt.subplots(1, 2, figsize=(14, 5.8), gridspec_kw={"width_ratios": [1, 1.6]})
     pics = fix.pictures or FixPictures()
     sm, g = pics.score_map, pics.grid
@@ -114,11 +126,7 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
                      f"roll {fix.roll_deg:.2f} | sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m, "
                      f"{fix.sigma_heading_deg:.2f} deg", fontsize=9)
     fig.tight_layout()
-    tmp = out.with_name(out.name + ".part.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, out)
-    return out
+    return fig
 
 
 def _inset(ax, fix, *, truth: tuple[float, float] | None) -> None:
