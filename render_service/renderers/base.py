@@ -11,6 +11,7 @@ from typing import Callable
 
 import numpy as np
 
+from board.conventions import BODIES
 from board.errors import InvalidInputError
 from board.skydb import GridSpec, Tile
 
@@ -30,7 +31,7 @@ class RenderSpec:
     camera_height_m: float = 2.0
     n_azimuth: int = 360
     azimuth_start_deg: float = 0.0
-    body_radius_m: float = 3_389_500.0
+    body_radius_m: float = BODIES["mars"].radius_m
     refraction_k: float = 0.0
     max_distance_m: float | None = None
 
