@@ -71,6 +71,7 @@ class DetectorParams:
     above_step_window_px: int = 3       # rows each side of a step looked for above the line
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
+    initial_bands: float = 0.2          # > 0: first class fits on this fraction of the seen rows at the top / bottom
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
 
 
@@ -301,6 +302,14 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     bright_col = np.repeat(np.array(bright_s), np.diff(edges))
     sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
     ground0 = seen & ~sky0
+    if P.initial_bands > 0:
+        # the brightness split can put sunlit ground with a sky of the same grey; the top and the
+        # bottom of the view are sky and ground in every scene with a horizon in view
+        seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
+        band = np.maximum(2, P.initial_bands * n_seen_col)[None, :]
+        sky0 = seen & (seen_rank <= band)
+        ground0 = seen & (seen_rank > n_seen_col[None, :] - band)
+        del seen_rank
     del top, bottom
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
