@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import click
 
+from board.atomic import write_text_atomic
 from board.cliargs import parse_floats, parse_xy
 from board.errors import InvalidInputError, NoSkylineError
 from board.pose.confidence import STATUS_AMBIGUOUS, STATUS_FAILED, STATUS_OK
@@ -85,12 +85,6 @@ def _tilt_text(fix, q: Query) -> str:
     return (f"pitch {fix.pitch_deg:.2f}  roll {fix.roll_deg:.2f} deg residual after levelling with the "
             f"acquisition's attitude (pitch {p:.2f}, roll {r:.2f}): mast tilt about pitch {p + fix.pitch_deg:.2f}"
             f"  roll {r + fix.roll_deg:.2f}")
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 @click.command("locate")
@@ -175,7 +169,7 @@ def locate_cmd(ctx: click.Context, db_path: Path, sky_path: Path | None, acq_dir
     d["truth"] = None if cmp is None else cmp.to_json_dict()
     d["exit_code"] = 0 if allow_uncertain else EXIT_CODES[fix.status]
     if out is not None:
-        _write_atomic(out, json.dumps(d, indent=2))
+        write_text_atomic(out, json.dumps(d, indent=2))
     if plot is not None:
         from board.plots import plot_fix  # noqa: PLC0415
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import atomic_path
+
 
 def save_extraction_picture(result, path: str | os.PathLike, *, truth_row: np.ndarray | None = None,
                             dpi: int = 110) -> Path:
@@ -52,8 +54,9 @@ def save_extraction_picture(result, path: str | os.PathLike, *, truth_row: np.nd
     axc.set_xlabel(f"azimuth (deg, relative to {geom.azimuth_reference})")
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".part.png")
-    fig.savefig(tmp, dpi=dpi)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, suffix=".part.png") as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        plt.close(fig)
     return path

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import atomic_path
 from board.locate.fix import FixPictures
 from board.pose.sphere import enu_az_el
 
@@ -51,10 +52,11 @@ def plot_fix(fix, out: str | os.PathLike, *, truth: tuple[float, float] | None =
     plt = _plt()
     out = Path(out)
     fig = draw_fix(fix, truth=truth, half_window=half_window)
-    tmp = out.with_name(out.name + ".part.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, out)
+    try:
+        with atomic_path(out, suffix=".part.png") as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return out
 
 

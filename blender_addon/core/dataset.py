@@ -32,6 +32,7 @@ from blender_addon.core.acquire import AcquisitionJob, Simulator, job_dict
 from blender_addon.core.degrade import check_look_body
 from blender_addon.core.scene_spec import SceneSpec, SiteSpec, load_scene, set_jobs, set_seed
 from board.acquisition import ACQUISITION_MANIFEST
+from board.atomic import write_json_atomic
 from board.errors import InvalidInputError
 from board.progress import Progress, report
 
@@ -43,11 +44,8 @@ DATASET_MANIFEST = "dataset.json"
 SET_MANIFEST = "manifest.json"
 
 
-
 def _write_json(path: Path, doc: dict) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(json.dumps(doc, indent=1))
-    os.replace(tmp, path)
+    write_json_atomic(path, doc, indent=1)
 
 
 def scaled_dem(src: Path, z_scale: float, out: Path) -> Path:
