@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from board.cliargs import parse_xy
+from blender_addon.cli_options import body_option, crs_option, dem_option, site
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -21,9 +21,9 @@ def sim_group() -> None:
 
 
 @sim_group.command("panorama")
-@click.option("--dem", required=True, help="DEM file, or procedural:PRESET:SEED[:SIZE_M[:RES_M]].")
+@dem_option()
 @click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
-@click.option("--crs", default=None, help="CRS of --at when it is not the DEM's (e.g. EPSG:4326).")
+@crs_option()
 @click.option("--height", "height_m", type=float, default=2.0, show_default=True,
               help="Camera (mast) height above the ground, metres.")
 @click.option("--heading", "heading_deg", type=float, default=0.0, show_default=True,
@@ -39,7 +39,7 @@ def sim_group() -> None:
 @click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples for dressed looks.")
 @click.option("--radius", "radius_m", type=float, default=None,
               help="Keep terrain up to this distance (m) from the rover (default: the whole DEM).")
-@click.option("--body", default=None, help="Body (earth, mars, moon, europa) or radius in metres, if the DEM lacks it.")
+@body_option()
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output panorama folder.")
 def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_deg: float, pitch_deg: float,
                  roll_deg: float, width: int, binary: bool, preset: str | None, seed: int, samples: int,
@@ -47,7 +47,6 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
     """Render an equirectangular panorama at a pose and write it as a panorama folder."""
     from tqdm import tqdm
 
-    from blender_addon.terrain.dem import resolve_dem, to_metric_xy
     from blender_addon.terrain.multires import build_multires
 
     if binary and preset:
@@ -57,8 +56,8 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
     if height_m < 0:
         raise InvalidInputError(f"--height must be >= 0 m, got {height_m}")
     with tqdm(total=3, desc="sim panorama", unit="step", disable=None) as bar:
-        path = resolve_dem(dem)
-        x, y = to_metric_xy(*parse_xy(at), dem_path=path, crs=crs, body=body)
+        c = site(dem, at, "--at", crs=crs, body=body)
+        path, (x, y) = c.dem_path, c.xy_m
         terrain = build_multires(path, (x, y), grid_half_m=max(50.0, 4 * height_m), max_radius_m=radius_m, body=body)
         bar.update(1)
         from blender_addon.scene import build_terrain, reset_scene
