@@ -71,7 +71,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
                             samples=samples, dem=str(dem), build=False)
         bar.update(1)
     click.echo(f"wrote {Path(out)}: {width} x {width // 2} {'binary' if binary else preset} panorama at "
-               f"({x:.2f}, {y:.2f}) m, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
+               f"{c.describe()}, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
 
 
 def register(group: click.Group) -> None:

@@ -70,7 +70,7 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
         progress(0, plan.n_frames, "dressing the scene, rendering frame 1")
         out = sim.acquire(job, out_dir, progress=progress)
     click.echo(f"wrote {Path(out)}: {plan.n_frames} {cam.width}x{cam.height} {preset} frames ({cam.name}) at "
-               f"({x:.2f}, {y:.2f}) m, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
+               f"{c.describe()}, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
 
 
 @click.command("dataset")

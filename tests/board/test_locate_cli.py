@@ -58,13 +58,13 @@ def test_locate_cli_errors_name_the_problem(mountain_world, tmp_path):
 
 # --- honesty of the CLI: truth, exit codes, provenance, grid edge (issue 13 points 1-2) -------------------------
 
-def _acquisition_at(world, folder, x, y, heading, pitch, roll):
+def _acquisition_at(world, folder, x, y, heading, pitch, roll, *, meta=None, horizon=None):
     """An acquisition folder seen from (x, y) at ``heading`` with the mast tilted by pitch/roll (truth in it)."""
     from board.acquisition import Acquisition, FrameInfo, GroundTruth, write_acquisition
     from board.camera import CameraModel
     from board.synthetic import frame_plan, synth_frames
 
-    az, el = world.horizon(x, y)
+    az, el = (horizon or world.horizon)(x, y)
     # the synthetic body looks along azimuth 0: its skyline is the world's, turned by the heading
     sky = lambda a: np.interp(np.asarray(a) + heading, az, el, period=360.0)  # noqa: E731
     cam = CameraModel.from_fov(320, 240, 60.0)
@@ -72,7 +72,8 @@ def _acquisition_at(world, folder, x, y, heading, pitch, roll):
     imgs = synth_frames(cam, plan, sky, pitch_deg=pitch, roll_deg=roll, noise_sigma=0.01, seed=4)
     frames = [FrameInfo(f"frame_{i:03d}.png", p, t) for i, (p, t) in enumerate(plan)]
     write_acquisition(folder, Acquisition(cam, 2.0, frames, attitude=(pitch, roll),
-                                          truth=GroundTruth(x, y, heading, pitch_deg=pitch, roll_deg=roll)),
+                                          truth=GroundTruth(x, y, heading, pitch_deg=pitch, roll_deg=roll),
+                                          meta=meta or {}),
                       images=imgs)
     return folder
 
@@ -176,6 +177,12 @@ def test_locate_refuses_a_query_from_another_dem_or_body(tmp_path):
     res = CliRunner().invoke(main, ["locate", "--db", str(tmp_path / "db.zarr"), "--skyline",
                                     str(tmp_path / "mars.json"), "--allow-uncertain"])
     assert res.exit_code == 0, res.output
+    # an acquisition says where it comes from in its manifest (the simulator writes meta.dem_sha256)
+    az = np.arange(0.0, 360.0, 0.25)
+    acq = _acquisition_at(None, tmp_path / "acq", 1.0, 2.0, 30.0, 0.0, 0.0, meta={"dem_sha256": "c" * 64},
+                          horizon=lambda x, y: (az, mf.horizon(x, y, az)[0]))
+    res = CliRunner().invoke(main, ["locate", "--db", str(tmp_path / "db.zarr"), "--acquisition", str(acq)])
+    assert res.exit_code == 1 and "DEM: the query was made from DEM sha256 cccccccccccc" in res.output
 
 
 def test_locate_flags_a_fix_within_a_step_of_the_grid_edge(mountain_world, tmp_path):
