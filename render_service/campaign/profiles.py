@@ -30,7 +30,8 @@ class Profile:
     heading_offsets_m, heading_window_deg, heading_presets : table 8, the heading-only mode with
         the position prior off by each offset and the heading prior within the window
     n_heading_poses, n_window_poses : how many of the poses tables 7 and 8 use
-    robustness : also run the robustness sets of ``scenes/robustness.toml`` (``full``)
+    robustness : also run the robustness sets of ``robustness_scene`` (``full``), at its sizes unless
+        ``robustness_limit`` (acquisitions per set) or ``robustness_width`` (camera pixels) are set (0: the scene's)
     large_area_m : also a lost-in-space search over this area side (``full``; 0 = none)
     min_relief_deg : a pose is used only where the true horizon rises this much above its lowest point
     camera_height_m : mast height for panoramas and databases (acquisitions use the camera's)
@@ -63,6 +64,9 @@ class Profile:
     n_heading_poses: int
     acq_tilt_every: int = 0
     robustness: bool = False
+    robustness_scene: str = "scenes/robustness.toml"
+    robustness_limit: int = 0
+    robustness_width: int = 0
     large_area_m: float = 0.0
     min_relief_deg: float = 1.0
     camera_height_m: float = 2.05

@@ -91,8 +91,9 @@ def _r(v, nd: int = 4):
     return "" if not math.isfinite(f) else round(f, nd)
 
 
-def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray) -> dict:
-    """The results row of a case (see :data:`COLUMNS`); empty cells where a stage did not run."""
+def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
+    """The results row of a case (see :data:`COLUMNS`); empty cells where a stage did not run
+    (and the relief and extraction columns empty without ``truth_el``, the true horizon)."""
     from render_service.campaign.planning import Site, off_grid_distance_steps  # noqa: PLC0415
     from render_service.campaign.planning import horizon_relief_deg  # noqa: PLC0415
 
@@ -106,13 +107,14 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray) -> dict:
         "true_y": _r(cd["y"], 3), "true_heading_deg": _r(cd["heading_deg"]), "pose": c["pose"], "kind": c["kind"],
         "extract_status": st.extract_status, "extract_s": _r(st.extract_s), "render_s": _r(st.render_s, 2),
         "reason": st.reason, "picture_error": st.picture_error, "prior_offset_m": _r(st.prior[2] if st.prior else c.get("prior_offset_m", 0.0), 3),
-        "heading_prior_deg": _r(st.heading_prior_deg), "true_relief_deg": _r(horizon_relief_deg(truth_el), 3),
+        "heading_prior_deg": _r(st.heading_prior_deg),
+        "true_relief_deg": "" if truth_el is None else _r(horizon_relief_deg(truth_el), 3),
         "off_grid_steps": _r(off_grid_distance_steps(cd["x"], cd["y"], site), 3),
     })
     if st.skyline is not None:
         sky = st.skyline
         row["seen_deg"] = _r(sky.coverage_deg, 2)
-        if c["kind"] in ("panorama", "acquisition"):
+        if c["kind"] in ("panorama", "acquisition") and truth_el is not None:
             tp, tr = (0.0, 0.0) if st.levelled else (st.pitch_deg, st.roll_deg)
             truth = true_skyline(truth_el, heading_deg=cd["heading_deg"], pitch_deg=tp, roll_deg=tr,
                                  n_azimuth=sky.n)

@@ -183,7 +183,8 @@ def test_rows_score_the_fix_against_the_truth_and_flag_wrong_ok():
 #: A reduced ci profile: every table, the fewest renders.
 SETTINGS = ["t4_presets=binary,clean", "t5_presets=binary", "window_presets=binary", "heading_presets=binary",
             "heading_offsets_m=0,20", "frames=7", "camera_width=128", "pano_width=480", "samples=1",
-            "window_step_m=4", "acq_preset=binary"]
+            "window_step_m=4", "acq_preset=binary", "robustness=true", "robustness_scene=scenes/test_tiny.toml",
+            "robustness_limit=1"]
 ARGS = ["--profile", "ci", "--seed", "5", "--poses", "2", "--acquisitions", "1", "--workers", "2", "--no-progress",
         *[a for s in SETTINGS for a in ("--set", s)]]
 
@@ -218,12 +219,20 @@ def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
     prof = get_profile("ci", **dict(parse_setting(s) for s in SETTINGS), n_poses=2, n_acquisitions=1,
                        n_window_poses=2, n_heading_poses=2)
     cases = planning.plan_cases(prof, len(plan["accepted"]))
-    assert [r["case_id"] for r in rows] == [c.case_id for c in cases]
+    assert [r["case_id"] for r in rows if r["table"] != "R"] == [c.case_id for c in cases]
+    # the robustness sets of the scene (one acquisition per set), located against their site's database
+    rob = [r for r in rows if r["table"] == "R"]
+    assert sorted(r["preset"].split("/")[0] for r in rob) == ["NL3", "OCCL", "REF"]
+    for r in rob:
+        acq = next((out / "robustness").glob(f"{r['preset'].split('/')[0]}/*/acq_000/acquisition.json"))
+        truth = json.loads(acq.read_text())["truth"]
+        assert float(r["true_x"]) == pytest.approx(truth["x"], abs=1e-3)
+        assert float(r["true_heading_deg"]) == pytest.approx(truth["heading_deg"], abs=1e-3)
     assert set(scoring.COLUMNS[:24]) <= set(rows[0])
-    assert {r["table"] for r in rows} == {"4", "5", "6", "7", "8"}
+    assert {r["table"] for r in rows} == {"4", "5", "6", "7", "8", "R"}
     for r in rows:
         folder = out / "cases" / r["case_id"]
-        if r["kind"] in ("panorama", "acquisition"):
+        if r["kind"] in ("panorama", "acquisition") and r["table"] != "R":
             manifest = folder / r["kind"] / f"{r['kind']}.json"
             truth = json.loads(manifest.read_text())["truth"]
             assert float(r["true_x"]) == pytest.approx(truth["x"], abs=1e-3)
