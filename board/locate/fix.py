@@ -69,6 +69,7 @@ class Fix:
     grid_row: float = float("nan")
     grid_col: float = float("nan")
     at_grid_edge: bool = False
+    n_outliers: int = 0
     pictures: FixPictures | None = field(default=None, repr=False)
 
     def to_json_dict(self) -> dict:
@@ -92,5 +93,5 @@ class Fix:
             "ambiguity_ratio": f(self.ambiguity_ratio), "far_mass": f(self.far_mass),
             "coverage_deg": f(self.coverage_deg), "positions_scored": self.n_scored,
             "positions_pruned": self.n_pruned, "grid_row": f(self.grid_row), "grid_col": f(self.grid_col),
-            "at_grid_edge": bool(self.at_grid_edge),
+            "at_grid_edge": bool(self.at_grid_edge), "outliers_masked": int(self.n_outliers),
         }

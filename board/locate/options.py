@@ -41,6 +41,8 @@ class LocateOptions:
     reweight : run the final refinement weighted by the grid error (ablation switch; True as tuned)
     parallax : the weighted refinement interpolates with parallax when the database stores horizon
         distances (ablation switch; True as tuned)
+    robust : mask the query columns the first fix cannot explain and locate again without them
+        (:mod:`board.locate.robust`; a clean query is unaffected)
     """
 
     mode: str = "lost"
@@ -56,6 +58,7 @@ class LocateOptions:
     position_sigma_m: float = 20.0
     reweight: bool = True
     parallax: bool = True
+    robust: bool = True
 
     @classmethod
     def from_keywords(cls, base: LocateOptions | None = None, **kw) -> LocateOptions:

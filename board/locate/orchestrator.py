@@ -10,7 +10,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,8 +19,18 @@ from board.errors import InvalidInputError
 from board.locate.assemble import make_fix
 from board.locate.fix import Fix
 from board.locate.options import DEFAULT_RADIUS_M, LocateOptions
-from board.locate.refinement import (allowed_shifts, candidates, coarse_init, competitive, harmonic_tilt, multistart,
-                                     noise_from_score, reweighted, walk_refine)
+from board.locate.refinement import (
+    allowed_shifts,
+    candidates,
+    coarse_init,
+    competitive,
+    harmonic_tilt,
+    multistart,
+    noise_from_score,
+    reweighted,
+    walk_refine,
+)
+from board.locate.robust import cleaned_query
 from board.locate.window import local_db
 from board.match.fft_score import QueryModel, heading_deg, prepare_query, score_block
 from board.match.search import Region, ScoreMap, search
@@ -202,4 +212,13 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
                          parallax=opts.parallax)
         if rew is not None:
             ref, local = rew
+    if opts.robust and smap is not None:
+        cleaned = cleaned_query(skyline, ref)
+        if cleaned is not None:
+            # columns the fix cannot explain (a rock, a wrong edge): locate again without them
+            log.info("%d query column(s) inconsistent with the fix: located again without them", cleaned[1])
+            fix = locate(db, cleaned[0], replace(opts, robust=False), progress=progress)
+            fix.n_outliers = cleaned[1]
+            fix.elapsed_s = time.perf_counter() - t0
+            return fix
     return make_fix(db, skyline, q, smap, ref, local, opts=opts, t0=t0, region=region)
