@@ -52,18 +52,41 @@ def test_the_credentialed_client_runs_code(cluster):
     assert client.submit(sum, [1, 2, 3]).result() == 6
 
 
-def test_clients_without_the_credentials_cannot_connect(cluster, tmp_path):
-    from distributed import Client
+async def _identity(address: str, security=None) -> dict:
+    """Connect to a Dask server as a client would and ask who it is (the first step of any Client)."""
+    from distributed.comm import connect
 
-    client, _ = cluster
+    kw = security.get_connection_args("client") if security is not None else {}
+    comm = await connect(address, timeout=5, **kw)
+    try:
+        await comm.write({"op": "identity"})
+        return await comm.read()
+    finally:
+        await comm.close()
+
+
+def test_clients_without_the_credentials_cannot_connect(cluster, tmp_path):
+    """Dask's own connect() (what a Client does first), without creating Clients whose failed start leaves
+    event-loop threads behind."""
+    import asyncio
+
+    from render_service.dask_tls import TlsFiles
+
+    client, tls_dir = cluster
     addr = client.scheduler.address
+    mine = TlsFiles(cert=tls_dir / "dask-cert.pem", key=tls_dir / "dask-key.pem").security()
+    assert asyncio.run(_identity(addr, mine))["type"] == "Scheduler"  # the credentials work: the probe is sound
     with pytest.raises(TypeError, match="ssl_context"):  # tls:// with no security at all
-        Client(addr, timeout=3)
+        asyncio.run(_identity(addr))
     with pytest.raises(OSError):  # the same port in clear text
-        Client(addr.replace("tls://", "tcp://"), timeout=3)
+        asyncio.run(_identity(addr.replace("tls://", "tcp://")))
     own = generate_tls_files(tmp_path / "attacker").security()  # a well-formed certificate of another CA
     with pytest.raises(OSError):
-        Client(addr, timeout=3, security=own)
+        asyncio.run(_identity(addr, own))
+    for worker in client.scheduler_info()["workers"]:  # the workers are behind the same TLS
+        with pytest.raises(OSError):
+            asyncio.run(_identity(worker, own))
+        assert asyncio.run(_identity(worker, mine))["type"] == "Worker"
     assert len(client.run(os.getpid)) == 1  # the cluster is unharmed
 
 
