@@ -2,7 +2,12 @@
 
 Run it with ``skyloc serve`` (uvicorn) or ``uvicorn --factory render_service.main:app_from_env``.
 Errors are JSON ``{"detail": reason, "code": machine_code}``: SkylocError subclasses map to
-422 (invalid input, CRS, nodata, unreadable DEM, corrupt file), 404 (unknown job), 500 otherwise.
+422 (invalid input, CRS, nodata, unreadable DEM, corrupt file), 404 (unknown job), 500 otherwise;
+routing and parsing errors (400, 404, 405) carry a code too; a data directory that does not take
+writes (full, read-only) answers 503 ``storage_unavailable``.
+
+Middleware, outermost first: CORS (only when configured), :class:`TokenGateMiddleware` (the token,
+checked before any body is received), :class:`BodyLimitMiddleware` (413 on oversized bodies).
 """
 from __future__ import annotations
 
