@@ -3,7 +3,8 @@
 The terrain's node grid becomes one quad mesh (world metres, no offset: the descent terrain is a
 local frame); its normals, albedo, temperature and shadow maps become float image textures sampled
 bilinearly at the same places as the fast renderer (UV ``((ix + 0.5) / nx, (iy + 0.5) / ny)`` at node
-``(ix, iy)``, image pixel centres on the nodes).  Two emission-only materials:
+``(ix, iy)``, image pixel centres on the nodes); a window of the terrain can be built instead of all
+of it.  Two emission-only materials:
 
 * visible: the memorandum's eq. 9 built from shader nodes (the Geometry node's *Incoming* vector
   is V, the lights are constant vectors), ``E = ambient rho + sum_s w_s [alpha rho max(N.L, 0) +
@@ -60,11 +61,28 @@ def _image(name: str, grid: np.ndarray) -> bpy.types.Image:
     return img
 
 
-def _mesh(renderer: DescentRenderer) -> bpy.types.Object:
+def _window(renderer: DescentRenderer, window) -> tuple[slice, slice]:
+    """Node index slices (rows, cols) of the world window (xmin, ymin, xmax, ymax) m, or the whole grid."""
     tr = renderer.terrain
     ny, nx = tr.shape
-    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
-    verts = np.stack([tr.x0 + ix * tr.res_m, tr.y0 + iy * tr.res_m, tr.height], axis=-1).reshape(-1, 3)
+    if window is None:
+        return slice(0, ny), slice(0, nx)
+    xmin, ymin, xmax, ymax = window
+    c0 = max(int(np.floor((xmin - tr.x0) / tr.res_m)), 0)
+    c1 = min(int(np.ceil((xmax - tr.x0) / tr.res_m)) + 1, nx)
+    r0 = max(int(np.floor((ymin - tr.y0) / tr.res_m)), 0)
+    r1 = min(int(np.ceil((ymax - tr.y0) / tr.res_m)) + 1, ny)
+    if c1 - c0 < 2 or r1 - r0 < 2:
+        raise InvalidInputError(f"window {window} m does not overlap the terrain {tr.bounds}")
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _mesh(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy.types.Object:
+    tr = renderer.terrain
+    height = tr.height[win]
+    ny, nx = height.shape
+    ix, iy = np.meshgrid(np.arange(win[1].start, win[1].stop), np.arange(win[0].start, win[0].stop))
+    verts = np.stack([tr.x0 + ix * tr.res_m, tr.y0 + iy * tr.res_m, height], axis=-1).reshape(-1, 3)
     idx = np.arange(nx * ny).reshape(ny, nx)
     quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], axis=-1).reshape(-1, 4)
     me = mesh_from_arrays(TERRAIN_OBJECT, verts, quads)
@@ -140,13 +158,13 @@ def _material(name: str) -> tuple[bpy.types.Material, _Nodes, object]:
     return mat, nodes, uv
 
 
-def visible_material(renderer: DescentRenderer) -> bpy.types.Material:
+def visible_material(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy.types.Material:
     """Emission material computing eq. 9 per shading point (see the module docstring)."""
     o = renderer.options
     if o.brdf != "tm":
         raise InvalidInputError(f"the Blender path renders the memorandum's eq. 9 only, not {o.brdf!r}: use --brdf tm")
     mat, nd, uv = _material("SkylocDescentVisible")
-    g = renderer._grids
+    g = {k: v[win] for k, v in renderer._grids.items()}
     nrm = nd.node("ShaderNodeVectorMath", operation="NORMALIZE")
     nd.link(nd.texture(_image("descent_normals", np.stack([g["nx"], g["ny"], g["nz"]], axis=-1)), uv),
             nrm.inputs[0])
@@ -167,21 +185,25 @@ def visible_material(renderer: DescentRenderer) -> bpy.types.Material:
         term = nd.math("ADD", diffuse, spec)
         if s.name in renderer.lit:
             term = nd.math("MULTIPLY", term, nd.red(nd.texture(_image(f"descent_lit_{s.name}",
-                                                                      renderer.lit[s.name]), uv)))
+                                                                      renderer.lit[s.name][win]), uv)))
         total = nd.math("ADD", total, nd.math("MULTIPLY", term, s.irradiance_w_m2 / SUN_IRRADIANCE_W_M2))
     nd.emit(total)
     return mat
 
 
-def thermal_material(renderer: DescentRenderer) -> bpy.types.Material:
+def thermal_material(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy.types.Material:
     """Emission material whose strength is the temperature map (K)."""
     mat, nd, uv = _material("SkylocDescentThermal")
-    nd.emit(nd.red(nd.texture(_image("descent_temperature", renderer.temperature), uv)))
+    nd.emit(nd.red(nd.texture(_image("descent_temperature", renderer.temperature[win]), uv)))
     return mat
 
 
-def build_descent_scene(renderer: DescentRenderer) -> bpy.types.Scene:
-    """Empty the session and build the terrain, both materials, a black world and Cycles set for emission."""
+def build_descent_scene(renderer: DescentRenderer, *, window=None) -> bpy.types.Scene:
+    """Empty the session and build the terrain, both materials, a black world and Cycles set for emission.
+
+    window : (xmin, ymin, xmax, ymax) world metres of terrain to build (None: all of it; a 400 m
+    terrain at 0.25 m is 2.6 million vertices, so give the frames' footprint when you can).
+    """
     if renderer.options.brdf != "tm":
         raise InvalidInputError(f"the Blender path renders the memorandum's eq. 9 only, not "
                                 f"{renderer.options.brdf!r}: use --brdf tm")
@@ -189,10 +211,11 @@ def build_descent_scene(renderer: DescentRenderer) -> bpy.types.Scene:
     scene = bpy.context.scene
     coll = bpy.data.collections.new(DESCENT_COLLECTION)
     scene.collection.children.link(coll)
-    obj = _mesh(renderer)
+    win = _window(renderer, window)
+    obj = _mesh(renderer, win)
     coll.objects.link(obj)
-    obj.data.materials.append(visible_material(renderer))
-    thermal_material(renderer)
+    obj.data.materials.append(visible_material(renderer, win))
+    thermal_material(renderer, win)
     world = bpy.data.worlds.new("SkylocDescentWorld")
     world.use_nodes = True
     bg = world.node_tree.nodes.get("Background")
