@@ -129,7 +129,7 @@ case "$engine" in
   buildah)
     base=$BASE_IMAGE
     if ! buildah inspect --type image "$base" >/dev/null 2>&1; then
-      if timeout 120 buildah pull --quiet "$base" >/dev/null 2>&1; then
+      if timeout 120 "$(type -P buildah)" --storage-driver "$STORAGE_DRIVER" pull --quiet "$base" >/dev/null 2>&1; then
         say "pulled $base"
       elif buildah inspect --type image "$LOCAL_BASE" >/dev/null 2>&1 && [ "${REBUILD_BASE:-0}" != 1 ]; then
         say "cannot pull $base: using the debootstrap base $LOCAL_BASE made earlier (REBUILD_BASE=1 remakes it)"
@@ -141,7 +141,7 @@ case "$engine" in
       fi
     fi
     # --format docker keeps HEALTHCHECK (the OCI image format has no field for it)
-    nice -n "$NICE" buildah bud --isolation chroot --format docker --layers --pull-never -t "$IMAGE" \
+    nice -n "$NICE" "$(type -P buildah)" --storage-driver "$STORAGE_DRIVER" bud --isolation chroot --format docker --layers --pull-never -t "$IMAGE" \
       --build-arg "BASE_IMAGE=$base" "${build_args[@]}" "${secret_args[@]}" "$CONTEXT"
     ;;
 esac
