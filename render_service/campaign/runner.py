@@ -194,6 +194,9 @@ def run_campaign(opt: CampaignOptions) -> dict:
                 "versions": _versions(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
     })
     _write_json(out / "summary.json", summary)
+    tmp = out / ".summary.md.tmp"
+    tmp.write_text(summ.markdown(summary))
+    os.replace(tmp, out / "summary.md")
     try:
         from render_service.campaign.report_html import write_report  # noqa: PLC0415
 

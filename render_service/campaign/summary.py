@@ -109,3 +109,36 @@ def _sort_key(key: str):
         else:
             out.append(order.get(p, 9))
     return tuple(str(v).zfill(8) if isinstance(v, (int, float)) else v for v in out)
+
+
+def markdown(summary: dict) -> str:
+    """The groups of a summary as a markdown table beside the report's figures (``summary.md``)."""
+    from render_service.campaign.runner import screen_summary  # noqa: PLC0415
+
+    refs = {ln.split()[0]: ln.split("  ")[-1].strip() for ln in screen_summary(summary)[2:-1]}
+
+    def g(v, spec=".2f"):
+        return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+    c = summary["campaign"]
+    lines = [f"Campaign `{c['profile']}` seed {c['seed']} on `{c['dem']}` ({c['body']}, sha256 {c['dem_sha256'][:12]}): "
+             f"{c['poses']} poses ({len(c['rejected_poses'])} rejected for a flat horizon), {c['rows']} cases.", "",
+             "| group | cases | skyline returned | kept/seen (median) | extraction error median (deg) | kept > 1 deg | "
+             "error median (m) | p90 (m) | max (m) | heading median (deg) | heading max (deg) | ok/amb/fail/no fix | "
+             "wrong (ok) | right flagged | <= 2.5 m & 0.5 deg | <= 5 m & 1 deg | report |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for key, a in summary["groups"].items():
+        st = a["status"]
+        lines.append(
+            f"| {key} | {a['cases']} | {g(a['skyline_returned'], '.0%')} | {g(a['kept_fraction']['median'], '.0%')} | "
+            f"{g(a['extract_median_abs_err_deg']['median'], '.3f')} | {g(a['kept_samples_gt1deg_share'], '.2%')} | "
+            f"{g(a['error_m']['median'])} | {g(a['error_m']['p90'])} | {g(a['error_m']['max'], '.1f')} | "
+            f"{g(a['heading_error_deg']['median'])} | {g(a['heading_error_deg']['max'])} | "
+            f"{st.get('ok', 0)}/{st.get('ambiguous', 0)}/{st.get('failed', 0)}/{st.get('no_fix', 0)} | "
+            f"{a['wrong']} ({a['wrong_ok']}) | {g(a['right_flagged_share'], '.0%')} | {g(a['within_2.5m_0.5deg'], '.0%')} | "
+            f"{g(a['within_5m_1deg'], '.0%')} | {refs.get(key, '')} |")
+    r = summary["run"]
+    lines += ["", f"Wall {r['wall_s']:.0f} s, CPU {r['cpu_s_main'] + r['cpu_s_workers']:.0f} s (main + workers), "
+                  f"peak RSS main {r['peak_rss_mb_main']:.0f} MB, workers {r['peak_rss_mb_workers']} MB, "
+                  f"load {r['load_avg']:.1f} at the end, {r['finished_utc']}."]
+    return "\n".join(lines) + "\n"
