@@ -160,9 +160,14 @@ def true_skyline(terrain, case: LabelCase, *, n: int = TRUTH_N_AZIMUTH) -> tuple
     return rel, np.asarray(dist)
 
 
-def _render_dressed(terrain, case: LabelCase, path: Path) -> tuple[np.ndarray, dict]:
+def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, dark_sky: bool = False
+                    ) -> tuple[np.ndarray, dict]:
     """Dressed equirectangular render of ``case`` (the steps of ``make_panorama``'s dressed look, with
-    the case's sun and texture seed instead of the preset's)."""
+    the case's sun and texture seed instead of the preset's).
+
+    degradation : replaces the case's preset (its sun is still the case's); dark_sky : a black,
+    airless sky (lunar look) instead of the dressing's sky.
+    """
     from blender_addon.core import degrade
     from blender_addon.core.degrade import SunParams
     from blender_addon.core.terrain_mesh import sample_height
@@ -170,17 +175,27 @@ def _render_dressed(terrain, case: LabelCase, path: Path) -> tuple[np.ndarray, d
     from blender_addon.scene import render as R
     from blender_addon.scene.camera import place_camera
 
-    deg = degrade.get_degradation(case.preset)
+    deg = degradation if degradation is not None else degrade.get_degradation(case.preset)
     deg = replace(deg, sun=SunParams(azimuth_deg=case.sun_azimuth_deg, elevation_deg=case.sun_elevation_deg))
     info = dressing.dress_scene(terrain, deg, center_xy=(case.x, case.y), heading_deg=case.heading_deg,
                                 seed=case.seed, texture_seed=case.texture_seed, samples=case.samples)
+    if dark_sky:
+        import bpy
+
+        world = bpy.data.worlds.get("SkylocDarkSky") or bpy.data.worlds.new("SkylocDarkSky")
+        world.use_nodes = True
+        world.node_tree.nodes["Background"].inputs[0].default_value = (0.0, 0.0, 0.0, 1.0)
+        bpy.context.scene.world = world
     z = sample_height(terrain, case.x, case.y) + case.height_m
     place_camera(case.x, case.y, z, case.heading_deg, case.pitch_deg, case.roll_deg)
     p = R.render_equirect(path, width=case.width, height=case.width // 4, el_range_deg=EL_RANGE_DEG,
                          color_mode="RGB", color_depth="16")
     lin = degrade.decode_render(R.read_image(p))
     rng = np.random.default_rng(np.random.SeedSequence([case.seed & 0xFFFFFFFF, 0x9A40]))
-    img = degrade.degrade_panorama(lin, deg, rng) if deg.lens.dispersion == 0 else _distorted(lin, deg, rng)
+    if deg.lens.dispersion == 0 and deg.lens.vignetting == 0:
+        img = degrade.degrade_panorama(lin, deg, rng)
+    else:
+        img = _distorted(lin, deg, rng)
     img = np.ascontiguousarray(img[..., ::-1])          # BGR, as board.acquisition writes with OpenCV
     meta = {"preset": case.preset, "sun_azimuth_deg": info.sun_azimuth_deg,
             "sun_elevation_deg": info.sun_elevation_deg, "n_rocks": info.n_rocks, "label_key": case.key}
@@ -219,25 +234,31 @@ def _distorted(lin: np.ndarray, deg, rng: np.random.Generator) -> np.ndarray:
     return degrade.quantise(degrade.srgb_encode(out), s.bit_depth)
 
 
-def make_label(case: LabelCase, *, terrain=None) -> Path:
-    """Render (or reuse) the label folder of ``case``: ``pano/`` (a panorama folder) + ``truth.npz``."""
+def make_label(case: LabelCase, *, terrain=None, out: Path | None = None, degradation=None,
+               dark_sky: bool = False, build: bool = True) -> Path:
+    """Render (or reuse) the label folder of ``case``: ``pano/`` (a panorama folder) + ``truth.npz``.
+
+    out : the folder (default ``case.folder`` under :data:`LABEL_ROOT`); degradation / dark_sky : see
+    :func:`_render_dressed`; build : build the terrain in the scene first (False: it is already there).
+    """
     from blender_addon.scene import build_terrain, reset_scene
     from blender_addon.terrain.dem import resolve_dem
     from blender_addon.terrain.multires import build_multires
     from board.acquisition import GroundTruth, write_panorama
 
-    out = case.folder
+    out = Path(out) if out is not None else case.folder
     if (out / "truth.npz").is_file():
         return out
     t0 = time.perf_counter()
     if terrain is None:
         terrain = build_multires(resolve_dem(case.dem), (case.x, case.y), grid_half_m=50.0)
-    reset_scene()
-    build_terrain(terrain)
-    LABEL_ROOT.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{case.key}.", dir=LABEL_ROOT))
+    if build:
+        reset_scene()
+        build_terrain(terrain)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        img, meta = _render_dressed(terrain, case, tmp / "render.png")
+        img, meta = _render_dressed(terrain, case, tmp / "render.png", degradation=degradation, dark_sky=dark_sky)
         (tmp / "render.png").unlink(missing_ok=True)
         truth = GroundTruth(x=case.x, y=case.y, heading_deg=case.heading_deg, pitch_deg=case.pitch_deg,
                             roll_deg=case.roll_deg, crs=terrain.crs_wkt, dem=case.dem)

@@ -503,14 +503,19 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
         f_above, _ = _window_mean(c, sf, b, -w, 0)
         f_below, _ = _window_mean(c, sf, b, 0, R)
         c_sat = np.minimum(c_sat, 1.0 - np.clip(np.minimum(f_above, f_below) / 0.5, 0, 1))
-    # a saturated "sky" is no evidence of sky (glare, over-exposure): mask when most of it is clipped
-    f_sky_sat, _ = _window_mean((grey >= P.saturation_level).astype(np.float32), sf, b, -R, 0)
-    c_sat = np.minimum(c_sat, 1.0 - np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
+    # a saturated "sky" over ground touched by saturation is glare, no evidence of sky: mask when most
+    # of the sky window is clipped and some of the ground window too.  A saturated sky over unclipped
+    # ground (over-exposure) is a measurable boundary and is kept.
+    sat = (grey >= P.saturation_level).astype(np.float32)
+    f_sky_sat, _ = _window_mean(sat, sf, b, -R, 0)
+    f_ground_sat, _ = _window_mean(sat, sf, b, 0, R)
+    glare = np.clip((f_ground_sat - 0.02) / 0.03, 0, 1)
+    c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    s_above = _largest_step_above(proj, seen, b, P.above_step_window_px)
+    s_above, s_noise = _largest_step_above(proj, seen, b, P.above_step_window_px)
     lo, hi = P.above_step_range
-    lo = max(lo, 6.0 * _pixel_noise(proj, seen, b) * math.sqrt(2.0 / P.above_step_window_px))
+    lo = max(lo, 6.0 * s_noise)
     hi = max(hi, lo + 0.05)
     c_above = 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
@@ -520,31 +525,18 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     return np.nan_to_num(conf, nan=0.0)
 
 
-def _pixel_noise(proj: np.ndarray, seen: np.ndarray, b: np.ndarray) -> float:
-    """Pixel noise of ``proj`` in the sky (robust: MAD of the vertical second difference over the seen
-    rows more than 5 rows above the line, divided by sqrt(6)); smooth gradients do not count."""
-    H, W = proj.shape
-    k = max(1, int(math.sqrt(H * W / 200_000)))
-    sub, sn = proj[::k, ::k], seen[::k, ::k]
-    d2 = sub[:-2] - 2.0 * sub[1:-1] + sub[2:]
-    rows = (np.arange(1, sub.shape[0] - 1) * k)[:, None]
-    ok = sn[:-2] & sn[1:-1] & sn[2:] & (rows < b[::k][None, :] - 5)
-    if ok.sum() < 100:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(d2[ok])) / math.sqrt(6.0))
-
-
 def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
     """Per column, the largest sky-to-ground step of ``proj`` (mean of ``k`` rows below minus ``k`` rows
-    above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``.
-    0 where there is no such boundary."""
+    above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``
+    (0 where there is no such boundary), and the noise of such a step: 1.4826 MAD of the steps in the
+    sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell)."""
     H, W = proj.shape
     cs = np.zeros((H + 1, W), dtype=np.float64)
     np.cumsum(np.where(seen, proj, 0.0), axis=0, out=cs[1:])
     cn = np.zeros((H + 1, W), dtype=np.int32)
     np.cumsum(seen, axis=0, out=cn[1:])
     if H < 2 * k + 2:
-        return np.zeros(W)
+        return np.zeros(W), 0.0
     r = np.arange(k, H - k + 1)[:, None]                 # boundary between rows r - 1 and r
     mid = cs[k:H - k + 1]
     step = (cs[2 * k:] - mid) - (mid - cs[:H - 2 * k + 1])  # k * (mean of rows [r, r+k) - mean of [r-k, r))
@@ -552,8 +544,14 @@ def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: in
     full = (cn[2 * k:] - cn[:H - 2 * k + 1]) == 2 * k
     del cs, cn
     ok = full & (r + k <= b[None, :] - 1)
+    far = ok & (r + k <= b[None, :] - 10)
+    sky_steps = step[far]
+    if sky_steps.size > 50_000:
+        sky_steps = sky_steps[:: sky_steps.size // 50_000]
+    noise = (float(1.4826 * np.median(np.abs(sky_steps - np.median(sky_steps)))) if sky_steps.size >= 100
+             else 0.0)
     step = np.where(ok, step, 0.0)
-    return np.maximum(step.max(axis=0), 0.0)
+    return np.maximum(step.max(axis=0), 0.0), noise
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:
