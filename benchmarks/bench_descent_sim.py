@@ -44,9 +44,9 @@ def _worker(args):
     _, setup_s = _setup(cfg)
     simulate_trial(cfg, Path(out) / f"warm{trial}")               # compiles / loads the numba cache
     cfg = DescentConfig(trajectory=trajectory, trial=trial, frames=frames)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     simulate_trial(cfg, Path(out) / f"t{trial}")
-    return frames, time.perf_counter() - t0, setup_s
+    return frames, time.perf_counter() - t0, setup_s, time.process_time() - c0
 
 
 def _blender_agreement(cfg, renderer, motion, cam, n: int) -> dict:
@@ -119,6 +119,7 @@ def main() -> None:
         wall = time.perf_counter() - t0
     pairs = sum(r[0] for r in res)
     frame_wall = max(r[1] for r in res)
+    trial_cpu = sum(r[3] for r in res)
     agree = _blender_agreement(cfg, renderer, motion, cam, args.blender) if args.blender else None
     load = os.getloadavg()
     print(f"| measure | value |\n| --- | --- |")
@@ -128,6 +129,8 @@ def main() -> None:
     print(f"| one process, pairs per CPU second | {1.0 / sum(one.values()):.2f} |")
     print(f"| {args.workers} processes, {pairs} pairs (whole trials incl. IMU, altimeter), pairs per wall s | "
           f"{pairs / frame_wall:.2f} |")
+    print(f"| {args.workers} processes: pairs per CPU s of the whole trials (x {args.workers} = pairs/s on "
+          f"{args.workers} idle cores) | {pairs / trial_cpu:.2f} |")
     print(f"| scene set-up per worker (terrain, normals, temperature), CPU s | {setup_s:.1f} |")
     print(f"| total wall s incl. set-up and warm-up | {wall:.1f} |")
     if agree:
