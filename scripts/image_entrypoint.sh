@@ -44,6 +44,16 @@ tls_env() {
   fi
 }
 
+# A plain-TCP Dask scheduler or worker lets anyone who reaches it run code as this user: refused
+# unless asked for (SKYLOC_DASK_INSECURE=1, e.g. on a private test network).
+require_tls() {
+  if [ "$PROTO" != tls ] && [ "${SKYLOC_DASK_INSECURE:-0}" != 1 ]; then
+    echo "skyloc-role: refusing to run a Dask $ROLE without TLS: set SKYLOC_TLS_CA_FILE, SKYLOC_TLS_CERT and" \
+         "SKYLOC_TLS_KEY (make them with: skyloc-role tls DIR), or SKYLOC_DASK_INSECURE=1 to accept plain TCP" >&2
+    exit 2
+  fi
+}
+
 case "$ROLE" in
   api)
     tls_env
@@ -52,11 +62,13 @@ case "$ROLE" in
     ;;
   scheduler)
     tls_env
+    require_tls
     echo scheduler >"$ROLE_FILE"
     exec dask scheduler --protocol "$PROTO" --host "$BIND" --port "${SKYLOC_DASK_PORT:-8786}" --no-dashboard "$@"
     ;;
   worker)
     tls_env
+    require_tls
     : "${SKYLOC_SCHEDULER:?SKYLOC_SCHEDULER must name the scheduler, e.g. tls://scheduler:8786}"
     echo worker >"$ROLE_FILE"
     exec dask worker "$SKYLOC_SCHEDULER" --nthreads 1 --nworkers "${SKYLOC_WORKER_PROCESSES:-1}" \

@@ -190,6 +190,19 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.parametrize("role", ["scheduler", "worker"])
+def test_dask_roles_refuse_to_run_without_tls(role, tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("SKYLOC_", "DASK_"))}
+    env.update(SKYLOC_SCHEDULER="tcp://127.0.0.1:1", SKYLOC_ROLE_FILE=str(tmp_path / "role"))
+    r = subprocess.run(["sh", str(ENTRY), role], env=env, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "without TLS" in r.stderr and "skyloc-role tls DIR" in r.stderr, r.stderr
+    assert not (tmp_path / "role").exists()  # refused before anything started
+    env["SKYLOC_TLS_CA_FILE"] = str(tmp_path / "missing.pem")
+    env.update(SKYLOC_TLS_CERT=str(tmp_path / "missing.pem"), SKYLOC_TLS_KEY=str(tmp_path / "missing.pem"))
+    r = subprocess.run(["sh", str(ENTRY), role], env=env, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "cannot read" in r.stderr and "missing.pem" in r.stderr, r.stderr
+
+
 @pytest.mark.service
 def test_health_check_passes_for_a_tokened_api_and_fails_when_it_is_down(tmp_path):
     """The HEALTHCHECK command against a real `api` role (API only, no cluster) started with a token."""
