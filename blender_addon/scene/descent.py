@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 DESCENT_COLLECTION = "SkylocDescent"
 TERRAIN_OBJECT = "SkylocDescentTerrain"
 CAMERA_OBJECT = "SkylocDescentCamera"
+TRAJECTORY_OBJECT = "SkylocDescentTrajectory"
 #: OpenCV camera axes (x right, y down, z forward) -> Blender camera axes (x right, y up, z backward).
 _CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 
@@ -198,16 +199,38 @@ def thermal_material(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy
     return mat
 
 
-def build_descent_scene(renderer: DescentRenderer, *, window=None) -> bpy.types.Scene:
-    """Empty the session and build the terrain, both materials, a black world and Cycles set for emission.
+def clear_descent_scene() -> None:
+    """Remove what :func:`build_descent_scene` added (terrain, camera, trajectory curve) from the session."""
+    for name in (TERRAIN_OBJECT, CAMERA_OBJECT, TRAJECTORY_OBJECT):
+        obj = bpy.data.objects.get(name)
+        if obj is not None:
+            data = obj.data
+            bpy.data.objects.remove(obj)
+            if data is not None and data.users == 0:
+                for coll in (bpy.data.meshes, bpy.data.cameras, bpy.data.curves):
+                    if data.name in coll and coll[data.name] == data:
+                        coll.remove(data)
+                        break
+    coll = bpy.data.collections.get(DESCENT_COLLECTION)
+    if coll is not None:
+        bpy.data.collections.remove(coll)
+
+
+def build_descent_scene(renderer: DescentRenderer, *, window=None, reset: bool = True) -> bpy.types.Scene:
+    """Build the terrain, both materials, a black world and Cycles set for emission in the current scene.
 
     window : (xmin, ymin, xmax, ymax) world metres of terrain to build (None: all of it; a 400 m
     terrain at 0.25 m is 2.6 million vertices, so give the frames' footprint when you can).
+    reset : empty the session first (factory settings); the add-on passes False and only the
+    previous descent objects are replaced.
     """
     if renderer.options.brdf != "tm":
         raise InvalidInputError(f"the Blender path renders the memorandum's eq. 9 only, not "
                                 f"{renderer.options.brdf!r}: use --brdf tm")
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if reset:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+    else:
+        clear_descent_scene()
     scene = bpy.context.scene
     coll = bpy.data.collections.new(DESCENT_COLLECTION)
     scene.collection.children.link(coll)
@@ -245,7 +268,7 @@ def build_descent_scene(renderer: DescentRenderer, *, window=None) -> bpy.types.
     cam.clip_start = 0.05
     cam.clip_end = 1.0e5
     cam_obj = bpy.data.objects.new(CAMERA_OBJECT, cam)
-    scene.collection.objects.link(cam_obj)
+    coll.objects.link(cam_obj)
     scene.camera = cam_obj
     return scene
 
@@ -259,6 +282,26 @@ def place_descent_camera(cam: DescentCamera, R_wb, p_wb) -> bpy.types.Object:
     m[:3, 3] = np.asarray(p_wb, dtype=np.float64) + np.asarray(R_wb, dtype=np.float64) @ cam.t_body_cam
     obj.matrix_world = Matrix(m.tolist())
     set_perspective(obj, cam.model)
+    return obj
+
+
+def show_trajectory(points: np.ndarray) -> bpy.types.Object:
+    """A poly-line curve object through the (n, 3) world points of a trajectory (replaces the previous one)."""
+    old = bpy.data.objects.get(TRAJECTORY_OBJECT)
+    if old is not None:
+        curve = old.data
+        bpy.data.objects.remove(old)
+        bpy.data.curves.remove(curve)
+    curve = bpy.data.curves.new(TRAJECTORY_OBJECT, type="CURVE")
+    curve.dimensions = "3D"
+    spline = curve.splines.new("POLY")
+    pts = np.asarray(points, dtype=np.float64)
+    spline.points.add(len(pts) - 1)
+    co = np.column_stack([pts, np.ones(len(pts))]).astype(np.float32)
+    spline.points.foreach_set("co", co.ravel())
+    obj = bpy.data.objects.new(TRAJECTORY_OBJECT, curve)
+    coll = bpy.data.collections.get(DESCENT_COLLECTION)
+    (coll or bpy.context.scene.collection).objects.link(obj)
     return obj
 
 
