@@ -144,3 +144,16 @@ def test_refuses_to_resume_a_different_database(dem_path, tmp_path):
 def test_horizon_outside_the_dem_is_refused(dem_path):
     res = CliRunner().invoke(main, ["db", "horizon", "--dem", str(dem_path), "--at", "99999,0", "--json"])
     assert res.exit_code == 1 and "the position" in res.output and "not inside the DEM" in res.output
+
+
+def test_the_progress_bar_says_the_terrain_is_being_prepared_before_the_first_tile(dem_path, tmp_path, capfd):
+    """db render used to sit at 0 % while the terrain was built: the bar now opens first and says so."""
+    from render_service.dbrender import render_database
+    from render_service.renderers.base import RenderSpec
+
+    render_database(dem_path, center_xy=(100.0, -50.0), size_m=40.0, step_m=10.0, spec=RenderSpec(n_azimuth=72),
+                    out=tmp_path / "db.zarr", tile_size=3, progress=True)
+    err = capfd.readouterr().err
+    prep, rend = err.find("preparing the multi-resolution terrain"), err.find("rendering 4 tiles of 9 positions")
+    assert 0 <= prep < rend, err
+    assert "25/25" in err  # 5 x 5 positions, all counted
