@@ -26,6 +26,7 @@ from render_service import __version__
 from render_service.api.deps import require_token
 from render_service.api.docs import install_local_docs
 from render_service.api.routes import dems, health, jobs, ui
+from render_service.gdal_cache import set_cache_max
 from render_service.security import TokenAuth, TokenGateMiddleware, check_startup, load_token
 from render_service.settings import ServiceSettings
 from render_service.storage import DataDirLock, StorageMonitor, check_data_dir, is_storage_error, storage_reason
@@ -163,12 +164,8 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 
 def _limit_gdal_cache(nbytes: int) -> None:
-    """Bound GDAL's block cache in this (API) process: DEM validation then reads in bounded memory."""
-    try:
-        from osgeo import gdal  # noqa: PLC0415
-    except ImportError:  # GDAL is checked when a DEM is uploaded
-        return
-    gdal.SetCacheMax(int(nbytes))
+    """Bound GDAL's block cache in this (API) process (see :mod:`render_service.gdal_cache`)."""
+    set_cache_max(nbytes)
 
 
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:

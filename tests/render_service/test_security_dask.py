@@ -136,3 +136,17 @@ def test_the_temporary_credentials_are_removed_on_exit():
         during = set(Path(tempfile.gettempdir()).glob("skyloc-dask-tls-*")) - before
         assert len(during) == 1 and stat.S_IMODE(next(iter(during)).stat().st_mode) == 0o700
     assert not (set(Path(tempfile.gettempdir()).glob("skyloc-dask-tls-*")) - before)
+
+
+def test_scheduler_credentials_from_files(cluster, tmp_path):
+    """The --tls-ca-file/--tls-cert/--tls-key path (security_from_files) reaches a TLS scheduler; bad files refused."""
+    import asyncio
+
+    from render_service.engine import security_from_files
+
+    client, tls_dir = cluster
+    cert, key = tls_dir / "dask-cert.pem", tls_dir / "dask-key.pem"
+    sec = security_from_files(ca_file=cert, cert_file=cert, key_file=key)
+    assert asyncio.run(_identity(client.scheduler.address, sec))["type"] == "Scheduler"
+    with pytest.raises(InvalidInputError, match="--tls-key"):
+        security_from_files(ca_file=cert, cert_file=cert, key_file=tmp_path / "missing.pem")

@@ -13,10 +13,11 @@ from fastapi.concurrency import run_in_threadpool
 
 from board.errors import InvalidInputError, SkylocError
 from render_service.api.deps import get_settings, get_store
+from render_service.gdal_cache import validation_cache
 from render_service.schemas import DemOut, ErrorOut
 from render_service.settings import ServiceSettings
 from render_service.store import DemRecord, JobStore
-from render_service.uploads import _short, check_body, safe_filename, validate_dem
+from render_service.uploads import ALLOWED_DRIVERS, _short, check_body, safe_filename, validate_dem
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1/dems", tags=["dems"])
@@ -36,7 +37,8 @@ def _ingest(tmp: Path, sha: str, filename: str, body: str | None, settings: Serv
             store: JobStore) -> tuple[DemRecord, bool]:
     final = settings.dems_dir / f"{sha}{Path(filename).suffix.lower()}"
     try:
-        info = validate_dem(tmp, body=body, settings=settings)
+        with validation_cache(tmp, base_bytes=settings.gdal_cache_bytes, allowed_drivers=ALLOWED_DRIVERS):
+            info = validate_dem(tmp, body=body, settings=settings)
     except SkylocError as exc:
         raise type(exc)(_short(exc)) from None  # no server paths in the answer
     os.replace(tmp, final)
