@@ -26,6 +26,7 @@ from render_service import __version__
 from render_service.api.deps import require_token
 from render_service.api.docs import install_local_docs
 from render_service.api.routes import dems, health, jobs, ui
+from render_service.engine import check_dashboard_address
 from render_service.gdal_cache import set_cache_max
 from render_service.security import TokenAuth, TokenGateMiddleware, check_startup, load_token
 from render_service.settings import ServiceSettings
@@ -178,6 +179,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or ServiceSettings()
     token = load_token(settings)
     check_startup(settings, token)
+    check_dashboard_address(settings.dashboard)  # refused at start, not later in the runner thread
     check_data_dir(settings.data_dir)
     lock = DataDirLock(settings.data_dir)
     try:

@@ -119,7 +119,12 @@ def test_no_dashboard_and_no_http_routes_unless_asked(cluster):
             assert httpx.get(f"http://{host}:{port}/health", timeout=5).status_code == 404
 
 
-def test_dashboard_only_on_loopback():
+def test_dashboard_only_on_loopback(tmp_path):
+    from render_service.main import create_app
+    from render_service.settings import ServiceSettings
+
+    with pytest.raises(InvalidInputError, match="loopback"):  # at start-up, before any cluster
+        create_app(ServiceSettings(data_dir=tmp_path / "d", start_cluster=False, dashboard="0.0.0.0:8787"))
     assert check_dashboard_address(None) is None
     assert check_dashboard_address("127.0.0.1:8790") == "127.0.0.1:8790"
     for bad in ("0.0.0.0:8787", ":8787", "example.org:8787", "8787"):
