@@ -155,3 +155,16 @@ def test_scheduler_credentials_from_files(cluster, tmp_path):
     assert asyncio.run(_identity(client.scheduler.address, sec))["type"] == "Scheduler"
     with pytest.raises(InvalidInputError, match="--tls-key"):
         security_from_files(ca_file=cert, cert_file=cert, key_file=tmp_path / "missing.pem")
+
+
+def test_a_dashboard_asked_for_is_served_on_loopback_only():
+    """Positive control of the no-routes test: with ``dashboard`` the same routes answer, on 127.0.0.1."""
+    with dask_client(n_workers=1, processes=False, dashboard="127.0.0.1:0") as client:
+        port = client.scheduler_info()["services"]["dashboard"]
+        assert httpx.get(f"http://127.0.0.1:{port}/json/identity.json", timeout=10).status_code == 200
+        with socket.socket() as s:
+            s.settimeout(2)
+            public = next((a for a in socket.gethostbyname_ex(socket.gethostname())[2]
+                           if not a.startswith("127.")), None)
+            if public is not None:  # not listening on the machine's other addresses
+                assert s.connect_ex((public, port)) != 0
