@@ -91,6 +91,29 @@ def run_baseline(pano):
 DETECTORS = {"skyloc": run_skyloc, "baseline": run_baseline}
 
 
+def detector_from_file(path: str):
+    """An extraction run with the ``detect_skyline`` of another version of ``board/detect/sky_regions.py``
+    (e.g. ``git show c39f888:board/detect/sky_regions.py > /tmp/issue6.py``), same extraction chain."""
+    import importlib.util
+
+    import board.extraction as extraction
+
+    spec = importlib.util.spec_from_file_location("skyloc_other_detector", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod                 # dataclasses look their module up
+    spec.loader.exec_module(mod)
+
+    def run(pano):
+        current = extraction.detect_skyline
+        extraction.detect_skyline = lambda img, **kw: mod.detect_skyline(img, seen=kw.get("seen"),
+                                                                       wrap=kw.get("wrap", False))
+        try:
+            return run_skyloc(pano)
+        finally:
+            extraction.detect_skyline = current
+    return run
+
+
 def evaluate(folders, detectors=DETECTORS, *, verbose: bool = False) -> dict:
     from board.acquisition import load_panorama
 
@@ -101,19 +124,27 @@ def evaluate(folders, detectors=DETECTORS, *, verbose: bool = False) -> dict:
         truth = truth_on_grid(fine)
         view = in_view(truth, pano.geometry)
         for name, fn in detectors.items():
-            t = out.setdefault((case.split, case.preset, name), Tally())
-            t.n += 1
             el, status = fn(pano)
-            t.seen += int(view.sum())
+            tilt = "level" if case.pitch_deg == 0 and case.roll_deg == 0 else "tilt10"
+            keys = [(case.split, case.preset, name), (case.split, f"{case.dem_name} (all presets)", name),
+                    (case.split, f"{case.preset} {tilt}", name)]
+            ts = [out.setdefault(k, Tally()) for k in keys]
+            err = np.zeros(0)
+            kept = np.zeros(view.shape, bool)
+            if el is not None:
+                kept = view & np.isfinite(el)
+                err = np.abs(el[kept] - truth[kept])
+            for t in ts:
+                t.n += 1
+                t.seen += int(view.sum())
+                if el is not None:
+                    t.returned += 1
+                    t.kept += int(kept.sum())
+                    t.errors.append(err)
             if el is None:
                 if verbose:
                     log.info("%s %s %-9s %-8s refused: %s", case.key, case.dem_name, case.preset, name, status)
                 continue
-            t.returned += 1
-            kept = view & np.isfinite(el)
-            t.kept += int(kept.sum())
-            err = np.abs(el[kept] - truth[kept])
-            t.errors.append(err)
             if verbose:
                 log.info("%s %-22s %-9s %-8s p%+.0f r%+.0f %-8s kept %.2f med %.3f bad %.4f max %.2f", case.key,
                          case.dem_name, case.preset, name, case.pitch_deg, case.roll_deg, status,
@@ -135,29 +166,45 @@ def print_table(res: dict) -> None:
 
 _SPEED_CHILD = r"""
 import resource, sys, time, json
-import numpy as np
-from board.acquisition import PanoramaGeometry, Panorama
-from board.synthetic import SkylineFunction, synth_panorama
+from board.acquisition import load_panorama
 from board.extraction import extract_from_panorama
-g = PanoramaGeometry.full_circle(3600, 1800, elevation_top_deg=90.0, elevation_bottom_deg=-90.0)
-img = (np.clip(synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1), 0, 1) * 255 + .5).astype(np.uint8)
-img = np.repeat(img[..., None], 3, axis=2)
+pano = load_panorama(sys.argv[1])
+img, g = pano.image, pano.geometry
+from board.acquisition import Panorama
+import tracemalloc
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 best = (1e9, 1e9)
 for _ in range(3):
     t, c = time.perf_counter(), time.process_time()
     r = extract_from_panorama(Panorama(img, g))
     best = min(best, (time.perf_counter() - t, time.process_time() - c))
-print(json.dumps({"wall_s": best[0], "cpu_s": best[1], "status": r.status,
+del r
+tracemalloc.start()
+r = extract_from_panorama(Panorama(img, g))
+traced = tracemalloc.get_traced_memory()[1]
+tracemalloc.stop()
+print(json.dumps({"wall_s": best[0], "cpu_s": best[1], "status": r.status, "extraction_peak_mb": traced / 2**20,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "rss_before_mb": base / 1024}))
 """
 
 
 def speed() -> dict:
-    """Detector speed and peak memory on a 3600 x 1800 colour panorama, in a fresh child process."""
-    p = subprocess.run([sys.executable, "-c", _SPEED_CHILD], capture_output=True, text=True, check=True,
-                       env=os.environ | {"OMP_NUM_THREADS": "2"})
+    """Detector speed and peak memory on a 3600 x 1800 colour panorama read from disk, in a fresh
+    child process (peak RSS: the interpreter, numpy/OpenCV, the image and the extraction)."""
+    import tempfile
+
+    from board.acquisition import PanoramaGeometry, write_panorama
+    from board.synthetic import SkylineFunction, synth_panorama
+
+    g = PanoramaGeometry.full_circle(3600, 1800, elevation_top_deg=90.0, elevation_bottom_deg=-90.0)
+    img = synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1)
+    img = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+    with tempfile.TemporaryDirectory() as tmp:
+        write_panorama(tmp, np.repeat(img[..., None], 3, axis=2), g)
+        del img
+        p = subprocess.run([sys.executable, "-c", _SPEED_CHILD, tmp], capture_output=True, text=True,
+                           check=True, env=os.environ | {"OMP_NUM_THREADS": "2"})
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
@@ -168,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--presets", default=",".join(PRESETS))
     p.add_argument("--no-speed", action="store_true")
+    p.add_argument("--other-detector", help="also run this version of board/detect/sky_regions.py (a file)")
     p.add_argument("-v", "--verbose", action="store_true")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -181,12 +229,16 @@ def main(argv: list[str] | None = None) -> int:
                                           presets=tuple(a.presets.split(","))))
     print(f"# bench_detector: {len(folders)} labelled panoramas, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.2f}")
-    print_table(evaluate(folders, verbose=a.verbose))
+    dets = dict(DETECTORS)
+    if a.other_detector:
+        dets["other"] = detector_from_file(a.other_detector)
+    print_table(evaluate(folders, dets, verbose=a.verbose))
     if not a.no_speed:
         s = speed()
         print(f"\nspeed 3600 x 1800 colour panorama: wall {s['wall_s']:.2f} s, CPU {s['cpu_s']:.2f} s, "
-              f"peak RSS {s['peak_rss_mb']:.0f} MB (interpreter + numpy/OpenCV + image {s['rss_before_mb']:.0f} MB "
-              f"before extraction), status {s['status']}")
+              f"peak RSS {s['peak_rss_mb']:.0f} MB (after loading the panorama folder: {s['rss_before_mb']:.0f} MB), "
+              f"peak of the extraction's own allocations (tracemalloc) {s['extraction_peak_mb']:.0f} MB, "
+              f"status {s['status']}")
     return 0
 
 

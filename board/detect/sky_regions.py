@@ -525,33 +525,40 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     return np.nan_to_num(conf, nan=0.0)
 
 
-def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
+def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, float]:
     """Per column, the largest sky-to-ground step of ``proj`` (mean of ``k`` rows below minus ``k`` rows
     above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``
     (0 where there is no such boundary), and the noise of such a step: 1.4826 MAD of the steps in the
-    sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell)."""
+    sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell).
+
+    float32 running sums in place: about four (H, W) float32 arrays at the peak.
+    """
     H, W = proj.shape
-    cs = np.zeros((H + 1, W), dtype=np.float64)
-    np.cumsum(np.where(seen, proj, 0.0), axis=0, out=cs[1:])
-    cn = np.zeros((H + 1, W), dtype=np.int32)
-    np.cumsum(seen, axis=0, out=cn[1:])
     if H < 2 * k + 2:
         return np.zeros(W), 0.0
-    r = np.arange(k, H - k + 1)[:, None]                 # boundary between rows r - 1 and r
-    mid = cs[k:H - k + 1]
-    step = (cs[2 * k:] - mid) - (mid - cs[:H - 2 * k + 1])  # k * (mean of rows [r, r+k) - mean of [r-k, r))
-    step /= k
-    full = (cn[2 * k:] - cn[:H - 2 * k + 1]) == 2 * k
-    del cs, cn
-    ok = full & (r + k <= b[None, :] - 1)
+    cs = np.zeros((H + 1, W), dtype=np.float32)
+    np.cumsum(np.where(seen, proj, np.float32(0.0)), axis=0, out=cs[1:])
+    n = H - 2 * k + 1                                     # boundaries r = k .. H - k (between rows r-1 and r)
+    step = cs[2 * k:] - cs[k:H - k + 1]                   # k * mean of rows [r, r + k)
+    step -= cs[k:H - k + 1]
+    step += cs[:n]                                        # ... minus k * mean of rows [r - k, r)
+    step *= np.float32(1.0 / k)
+    del cs
+    cn = np.zeros((H + 1, W), dtype=np.int32)
+    np.cumsum(seen, axis=0, out=cn[1:])
+    ok = (cn[2 * k:] - cn[:n]) == 2 * k
+    del cn
+    r = np.arange(k, H - k + 1)[:, None]
+    ok &= r + k <= b[None, :] - 1
     far = ok & (r + k <= b[None, :] - 10)
     sky_steps = step[far]
+    del far
     if sky_steps.size > 50_000:
         sky_steps = sky_steps[:: sky_steps.size // 50_000]
     noise = (float(1.4826 * np.median(np.abs(sky_steps - np.median(sky_steps)))) if sky_steps.size >= 100
              else 0.0)
-    step = np.where(ok, step, 0.0)
-    return np.maximum(step.max(axis=0), 0.0), noise
+    step[~ok] = 0.0
+    return np.maximum(step.max(axis=0), 0.0).astype(np.float64), noise
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:
