@@ -218,6 +218,37 @@ def schemathesis_counts(max_examples: int) -> list[str]:
         shutil.rmtree(work, ignore_errors=True)
 
 
+def latency_only(args) -> list[str]:
+    """Status latency while a ``2 x --size`` job renders, on a fresh service (warm-up job first)."""
+    from blender_addon.terrain.dem import dem_info, resolve_dem
+
+    dem = resolve_dem(args.dem)
+    b = dem_info(dem).bounds
+    center = [(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]
+    work = Path(tempfile.mkdtemp(prefix="skyloc-bench-latency-"))
+    try:
+        svc = Service(work / "data", args.workers)
+        try:
+            with open(dem, "rb") as fh:
+                d = svc.client.post("/v1/dems", files={"file": (Path(dem).name, fh)}).json()
+            base = {"kind": "skyline_db", "dem_id": d["id"], "center": center, "azimuths": args.azimuths,
+                    "tile_size": args.tile, "camera_height_m": 2.0}
+            svc.wait(svc.submit({**base, "size_m": 20, "step_m": 10}))
+            big = svc.submit({**base, "size_m": args.size * 2, "step_m": args.step})
+            svc.wait(big, states=("running", "done", "failed"))
+            time.sleep(1.0)
+            lat, seq, running = status_latency(svc, big, concurrency=args.concurrency, rounds=args.rounds)
+            svc.client.delete(f"/v1/jobs/{big}")
+        finally:
+            svc.stop()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    q, qs = np.percentile(lat * 1000, [50, 99]), np.percentile(seq * 1000, [50, 99])
+    note = "" if running else " (the job finished during the test)"
+    return [f"| {args.rounds} bursts of {args.concurrency}{note}: p50 / p99 / max (ms) | {q[0]:.0f} / {q[1]:.0f} / "
+            f"{lat.max() * 1000:.0f} | 100 one at a time: p50 / p99 (ms) | {qs[0]:.1f} / {qs[1]:.1f} |"]
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--dem", default="procedural:mars:7:6000:5", help="DEM path or procedural:PRESET:SEED:SIZE:RES")
@@ -230,11 +261,16 @@ def main(argv=None) -> None:
     p.add_argument("--concurrency", type=int, default=200)
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--repeats", type=int, default=3, help="interleaved CLI / service runs (medians reported)")
+    p.add_argument("--latency-only", action="store_true",
+                   help="only: status latency while a job renders (no CLI runs)")
     p.add_argument("--dem-memory", action="store_true",
                    help="only: peak memory of validating a 30000 x 30000 sparse GeoTIFF upload")
     p.add_argument("--schemathesis", type=int, default=0, metavar="N",
                    help="only: N generated requests per API operation, count the answers (no 5xx allowed)")
     args = p.parse_args(argv)
+    if args.latency_only:
+        print("\n".join(latency_only(args)))  # noqa: T201 (benchmark output)
+        return
     if args.dem_memory or args.schemathesis:
         lines = dem_memory() if args.dem_memory else []
         lines += schemathesis_counts(args.schemathesis) if args.schemathesis else []
