@@ -215,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--presets", default=",".join(PRESETS))
     p.add_argument("--no-speed", action="store_true")
+    p.add_argument("--cached-only", action="store_true", help="measure the labels already rendered, render none")
     p.add_argument("--other-detector", help="also run this version of board/detect/sky_regions.py (a file)")
     p.add_argument("-v", "--verbose", action="store_true")
     a = p.parse_args(argv)
@@ -225,8 +226,11 @@ def main(argv: list[str] | None = None) -> int:
     for split in a.split.split(","):
         if split not in SPLITS:
             raise SystemExit(f"unknown split {split!r}")
-        folders += make_labels(draw_cases(split, per_dem=a.per_dem, seed=a.seed,
-                                          presets=tuple(a.presets.split(","))))
+        cases = draw_cases(split, per_dem=a.per_dem, seed=a.seed, presets=tuple(a.presets.split(",")))
+        if a.cached_only:
+            folders += [c.folder for c in cases if (c.folder / "truth.npz").is_file()]
+        else:
+            folders += make_labels(cases)
     print(f"# bench_detector: {len(folders)} labelled panoramas, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.2f}")
     dets = dict(DETECTORS)
