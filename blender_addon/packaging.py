@@ -27,7 +27,7 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
-EXTENSION_FILES = ("__init__.py", "blender_manifest.toml", "props.py", "ui.py", "bridge.py")
+EXTENSION_FILES = ("__init__.py", "blender_manifest.toml", "props.py", "ui.py", "ui_descent.py", "bridge.py")
 EXTENSION_DIRS = ("ops",)
 #: distributions Blender already ships: not bundled (a second numpy would shadow Blender's)
 PROVIDED_BY_BLENDER = frozenset({"numpy"})
