@@ -119,7 +119,7 @@ def test_sun_behind_the_wall_is_hidden(ring):
     from board.conventions import enu_from_az_el_deg
 
     sim, z = ring
-    sim._ensure_scene()
+    sim.ensure_scene()
     az = np.arange(0.0, 360.0, 30.0)
     wall = _true_horizon(z, 2.05, az)
     for a, w in zip(az, wall):
@@ -182,7 +182,7 @@ def test_seeds_reproduce_bytes_and_manifest_validates(ring, tmp_path):
 
 def test_adopt_renders_the_scene_already_built(ring, tmp_path):
     sim, _ = ring
-    sim._ensure_scene()
+    sim.ensure_scene()
     n_objects = len(bpy.data.objects)
     adopted = Simulator.adopt(sim.terrain, dem_spec="ring.tif", grid_half_m=60.0)
     assert len(bpy.data.objects) == n_objects                   # nothing reset or rebuilt
