@@ -125,3 +125,23 @@ def test_altimeter_equals_an_independent_ray_cast(terrain):
     k = res.size
     assert chi2.ppf(0.0005, k) < np.sum(res ** 2) / 0.3 ** 2 < chi2.ppf(0.9995, k)
     assert abs(res.mean()) < 4 * 0.3 / math.sqrt(k)
+
+
+@pytest.mark.slow
+def test_every_trajectory_keeps_the_whole_view_on_the_terrain():
+    from blender_addon.descent.simulate import cached_renderer
+    from blender_addon.descent.trajectories import TRAJECTORIES
+
+    cfg = DescentConfig(terrain="procedural:europa:2", terrain_res_m=1.0)
+    r = cached_renderer(cfg.terrain, cfg.terrain_res_m, cfg.terrain_size_m, tuple(cfg.lights), cfg.appearance)
+    cam = cfg.cameras()["visible"]
+    w, h = cam.model.width, cam.model.height
+    corners = cam.model.unproject(np.array([0, w - 1, 0, w - 1]), np.array([0, 0, h - 1, h - 1]))
+    for tid in TRAJECTORIES:
+        for trial in (0, 29):
+            m = trial_motion(DescentConfig(terrain=cfg.terrain, terrain_res_m=1.0, trajectory=tid, trial=trial),
+                             r.terrain)
+            for t in np.linspace(0.0, cfg.duration_s, 21):
+                R, p = m.rotation([t])[0], m.position([t])[0]
+                for d in corners @ (R @ cam.R_body_cam).T:
+                    assert np.isfinite(r.range_along(p + R @ cam.t_body_cam, d)), (tid, trial, t)
