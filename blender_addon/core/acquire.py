@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 
 from blender_addon.core.cameras import CameraPreset
-from blender_addon.core.degrade import (Degradation, decode_render, degrade_frame, render_camera_for)
+from blender_addon.core.degrade import Degradation, decode_render, degrade_frame, render_camera_for
 from blender_addon.core.plans import PanTiltPlan
 from board.acquisition import Acquisition, FrameInfo, GroundTruth, write_acquisition
 from board.camera import rotation_enu_from_frame

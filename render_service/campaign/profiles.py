@@ -139,7 +139,8 @@ def parse_setting(text: str) -> tuple[str, object]:
     key, raw = (t.strip() for t in text.split("=", 1))
     types = {f.name: f.type for f in fields(Profile)}
     if key not in types or key == "name":
-        raise InvalidInputError(f"--set {key}: not a profile field; fields: {', '.join(k for k in types if k != 'name')}")
+        names = ", ".join(k for k in types if k != "name")
+        raise InvalidInputError(f"--set {key}: not a profile field; fields: {names}")
     t = str(types[key])
     try:
         if t.startswith("tuple[str"):

@@ -15,10 +15,12 @@ def _norm(x: float, y: float) -> float:
 
 #: Table 4: (panorama id, noise level 1 binary / 2 realistic / 3 distorted) -> (position error m, heading error deg)
 TABLE4 = {
-    (1, "binary"): (_norm(1.5, 3), 0.0), (1, "realistic"): (_norm(1.5, 2), 0.0), (1, "distorted"): (_norm(1.5, 13), 12.0),
+    (1, "binary"): (_norm(1.5, 3), 0.0), (1, "realistic"): (_norm(1.5, 2), 0.0),
+    (1, "distorted"): (_norm(1.5, 13), 12.0),
     (2, "binary"): (_norm(0.75, 2), 0.0), (2, "realistic"): (_norm(0.75, 2), 0.0),
     (2, "distorted"): (_norm(19.2, 28), 8.0),
-    (3, "binary"): (_norm(1.5, 2), 0.0), (3, "realistic"): (_norm(1.5, 2), 0.0), (3, "distorted"): (_norm(3.5, 13), 0.0),
+    (3, "binary"): (_norm(1.5, 2), 0.0), (3, "realistic"): (_norm(1.5, 2), 0.0),
+    (3, "distorted"): (_norm(3.5, 13), 0.0),
 }
 #: Table 5 (binary panoramas, 10 degrees of pitch or roll): id -> {"pitch": (m, deg), "roll": (m, deg)}
 TABLE5 = {
@@ -41,7 +43,8 @@ def table4_summary() -> dict[str, dict[str, float]]:
     for level in ("binary", "realistic", "distorted"):
         errs = sorted(v[0] for k, v in TABLE4.items() if k[1] == level)
         heads = [v[1] for k, v in TABLE4.items() if k[1] == level]
-        out[level] = {"n": len(errs), "median_m": errs[len(errs) // 2], "max_m": errs[-1], "max_heading_deg": max(heads)}
+        out[level] = {"n": len(errs), "median_m": errs[len(errs) // 2], "max_m": errs[-1],
+                      "max_heading_deg": max(heads)}
     return out
 
 

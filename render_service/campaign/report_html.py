@@ -95,7 +95,8 @@ def _calibration_figure(rows: list[dict]):
                if r.get("status") == st and r.get("sigma_x_m") not in ("", None)]
         if pts:
             s, e = np.array(pts).T
-            ax.scatter(np.maximum(s, 1e-2), np.maximum(e, 1e-2), s=14, color=color, alpha=0.8, label=f"{st} ({len(pts)})")
+            ax.scatter(np.maximum(s, 1e-2), np.maximum(e, 1e-2), s=14, color=color, alpha=0.8,
+                       label=f"{st} ({len(pts)})")
     lim = np.array([1e-2, 1e4])
     ax.plot(lim, lim, "k-", lw=0.8, label="error = sigma")
     ax.plot(lim, 2.45 * lim, "k--", lw=0.8, label="error = 2.45 sigma (95 % in 2-D)")
@@ -222,7 +223,8 @@ def _groups_table(summary: dict) -> str:
 
 
 CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1400px;color:#222}
-table{border-collapse:collapse;font-size:12px;margin:0.5em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}
+table{border-collapse:collapse;font-size:12px;margin:0.5em 0}
+td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}
 th{background:#eee}td:first-child{text-align:left}img{max-width:100%}h2{border-bottom:1px solid #ccc}
 .note{color:#555;font-size:13px}"""
 

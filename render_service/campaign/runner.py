@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from board.errors import InvalidInputError, SkylocError
-from render_service.campaign import planning, scoring, summary as summ
+from render_service.campaign import planning, scoring
+from render_service.campaign import summary as summ
 from render_service.campaign.profiles import Profile, get_profile
 from render_service.campaign.tasks import TRUTH_N_AZIMUTH, CampaignContext
 

@@ -28,7 +28,8 @@ COLUMNS = (
     "sigma_heading_deg", "seen_deg", "extract_status", "extract_s", "locate_s", "reason",
     "pose", "kind", "fix_pitch_deg", "fix_roll_deg", "prior_offset_m", "heading_prior_deg", "render_s", "case_s",
     "true_relief_deg", "off_grid_steps", "kept_deg", "kept_fraction", "extract_median_abs_err_deg",
-    "extract_p90_abs_err_deg", "extract_frac_gt1deg", "ellipse95_major_m", "wrong", "wrong_ok", "right_flagged", "picture_error",
+    "extract_p90_abs_err_deg", "extract_frac_gt1deg", "ellipse95_major_m", "wrong", "wrong_ok", "right_flagged",
+    "picture_error",
 )
 #: Columns that measure time (they differ between two runs of the same campaign).
 TIME_COLUMNS = ("extract_s", "locate_s", "render_s", "case_s")
@@ -94,8 +95,11 @@ def _r(v, nd: int = 4):
 def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
     """The results row of a case (see :data:`COLUMNS`); empty cells where a stage did not run
     (and the relief and extraction columns empty without ``truth_el``, the true horizon)."""
-    from render_service.campaign.planning import Site, off_grid_distance_steps  # noqa: PLC0415
-    from render_service.campaign.planning import horizon_relief_deg  # noqa: PLC0415
+    from render_service.campaign.planning import (  # noqa: PLC0415
+        Site,
+        horizon_relief_deg,  # noqa: PLC0415
+        off_grid_distance_steps,
+    )
 
     c, cd = st.case, st.cand
     prof = ctx.profile
@@ -106,7 +110,8 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
         "mode": c["mode"], "pitch_deg": _r(st.pitch_deg), "roll_deg": _r(st.roll_deg), "true_x": _r(cd["x"], 3),
         "true_y": _r(cd["y"], 3), "true_heading_deg": _r(cd["heading_deg"]), "pose": c["pose"], "kind": c["kind"],
         "extract_status": st.extract_status, "extract_s": _r(st.extract_s), "render_s": _r(st.render_s, 2),
-        "reason": st.reason, "picture_error": st.picture_error, "prior_offset_m": _r(st.prior[2] if st.prior else c.get("prior_offset_m", 0.0), 3),
+        "reason": st.reason, "picture_error": st.picture_error,
+        "prior_offset_m": _r(st.prior[2] if st.prior else c.get("prior_offset_m", 0.0), 3),
         "heading_prior_deg": _r(st.heading_prior_deg),
         "true_relief_deg": "" if truth_el is None else _r(horizon_relief_deg(truth_el), 3),
         "off_grid_steps": _r(off_grid_distance_steps(cd["x"], cd["y"], site), 3),

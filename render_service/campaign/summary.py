@@ -121,7 +121,8 @@ def markdown(summary: dict) -> str:
         return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
     c = summary["campaign"]
-    lines = [f"Campaign `{c['profile']}` seed {c['seed']} on `{c['dem']}` ({c['body']}, sha256 {c['dem_sha256'][:12]}): "
+    lines = [f"Campaign `{c['profile']}` seed {c['seed']} on `{c['dem']}` ({c['body']}, "
+             f"sha256 {c['dem_sha256'][:12]}): "
              f"{c['poses']} poses ({len(c['rejected_poses'])} rejected for a flat horizon), {c['rows']} cases.", "",
              "| group | cases | skyline returned | kept/seen (median) | extraction error median (deg) | kept > 1 deg | "
              "error median (m) | p90 (m) | max (m) | heading median (deg) | heading max (deg) | ok/amb/fail/no fix | "
@@ -135,7 +136,8 @@ def markdown(summary: dict) -> str:
             f"{g(a['error_m']['median'])} | {g(a['error_m']['p90'])} | {g(a['error_m']['max'], '.1f')} | "
             f"{g(a['heading_error_deg']['median'])} | {g(a['heading_error_deg']['max'])} | "
             f"{st.get('ok', 0)}/{st.get('ambiguous', 0)}/{st.get('failed', 0)}/{st.get('no_fix', 0)} | "
-            f"{a['wrong']} ({a['wrong_ok']}) | {g(a['right_flagged_share'], '.0%')} | {g(a['within_2.5m_0.5deg'], '.0%')} | "
+            f"{a['wrong']} ({a['wrong_ok']}) | {g(a['right_flagged_share'], '.0%')} | "
+            f"{g(a['within_2.5m_0.5deg'], '.0%')} | "
             f"{g(a['within_5m_1deg'], '.0%')} | {refs.get(key, '')} |")
     r = summary["run"]
     lines += ["", f"Wall {r['wall_s']:.0f} s, CPU {r['cpu_s_main'] + r['cpu_s_workers']:.0f} s (main + workers), "

@@ -223,7 +223,7 @@ def case_task(ctx: CampaignContext, case: dict, cand: dict, truth_el: np.ndarray
 def _run_case(ctx: CampaignContext, case: dict, cand: dict, folder: Path, st) -> None:
     from board.extraction import extract_from_acquisition, extract_from_panorama  # noqa: PLC0415
     from board.skyline import Skyline  # noqa: PLC0415
-    from render_service.campaign.planning import Case, Candidate, prior_of, tilt_of  # noqa: PLC0415
+    from render_service.campaign.planning import Candidate, Case, prior_of, tilt_of  # noqa: PLC0415
     from render_service.campaign.profiles import Profile  # noqa: PLC0415
 
     c = Case(**case)

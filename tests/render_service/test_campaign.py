@@ -244,7 +244,8 @@ def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
             e = math.hypot(float(r["fix_x"]) - float(r["true_x"]), float(r["fix_y"]) - float(r["true_y"]))
             assert float(r["error_m"]) == pytest.approx(e, abs=2e-3)
             assert r["status"] in ("ok", "ambiguous", "failed")
-            assert r["wrong"] == str(int(e > scoring.WRONG_M or float(r["heading_error_deg"]) > scoring.WRONG_HEADING_DEG))
+            wrong = e > scoring.WRONG_M or float(r["heading_error_deg"]) > scoring.WRONG_HEADING_DEG
+            assert r["wrong"] == str(int(wrong))
         else:
             assert r["status"] == "no_fix" and r["reason"]
         if r["table"] == "5":
