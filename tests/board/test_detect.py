@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from board.acquisition import PanoramaGeometry
-from board.detect import detect_baseline, detect_skyline
+from board.detect import DetectorParams, detect_baseline, detect_skyline
 from board.detect.baseline import baseline_graph
 from board.detect.graph_dp import shortest_path_dp, shortest_path_l1
 from board.detect.sky_regions import _drop_short_runs
@@ -213,3 +213,53 @@ def test_ground_brighter_than_sky_on_one_side_only():
     # the sunlit half loses the sectors around the two artificial seams (the whole look changes there)
     assert det.valid[:half].mean() >= 0.9 and det.valid[half:].mean() >= 0.85
     assert np.nanmean(np.abs(err)) <= 0.5
+
+
+# -- issue 11: colour and hazy distant ridges -----------------------------------------------------
+def _two_class_image(rows_far, rows_near, *, sky, ground, haze_t, noise=0.01, texture=0.03, seed=0):
+    """(H, W, 3) float image: sky above ``rows_far``, hazy far terrain (ground mixed with the sky at
+    transmission ``haze_t``) between the two lines, textured ground below ``rows_near``."""
+    rng = np.random.default_rng(seed)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None] + 0.5
+    sky = np.asarray(sky, float)
+    ground = np.asarray(ground, float)
+    img = np.broadcast_to(sky, (H, W, 3)).copy()
+    img *= (1.0 + 0.1 * (r / H))[..., None]                 # the sky brightens towards the horizon
+    far = (r >= rows_far[None, :]) & (r < rows_near[None, :])
+    tex = texture * rng.standard_normal((H, W, 1))
+    img[far] = (haze_t * (ground + 0.3 * tex) + (1 - haze_t) * img)[far]
+    img[r >= rows_near[None, :]] = (ground + tex)[np.broadcast_to(r >= rows_near[None, :], (H, W))]
+    return np.clip(img + noise * rng.standard_normal(img.shape), 0, 1)
+
+
+def test_sky_and_ground_of_the_same_grey_told_apart_by_colour():
+    f = SkylineFunction.random(5)
+    rows = _truth_rows(f)
+    # BGR: a bluish sky and a tan ground of about the same grey level (0.61 and 0.64)
+    img = _two_class_image(rows, rows, sky=(0.70, 0.62, 0.55), ground=(0.45, 0.60, 0.78), haze_t=1.0)
+    det = detect_skyline(_u8(img), wrap=True)
+    assert det.valid.mean() >= 0.9
+    assert np.nanmean(np.abs(det.line_row - rows)) <= 1.0
+    grey_only = detect_skyline(_u8(img), wrap=True, params=DetectorParams(use_colour=False))
+    assert grey_only.valid.mean() < 0.5                        # grey alone cannot see this boundary
+
+
+def test_line_under_a_hazy_distant_ridge_is_never_kept():
+    f = SkylineFunction.random(9)
+    far = _truth_rows(f)
+    near = far.copy()
+    cols = np.arange(GEOM.width)
+    sector = (cols > 300) & (cols < 700)
+    near[sector] = far[sector] + 12 + 6 * np.sin(cols[sector] / 40.0)   # a nearer, lower ridge 3-4 deg down
+    img = _two_class_image(far, near, sky=(0.6, 0.6, 0.6), ground=(0.3, 0.3, 0.3), haze_t=0.45)
+    det = detect_skyline(_u8(img), wrap=True)
+    kept = det.valid & sector
+    # kept columns of the sector are on the far ridge (the skyline), never on the near one
+    assert np.all(np.abs(det.line_row[kept] - far[kept]) <= 2.0)
+    assert np.nanmean(np.abs(det.line_row[~sector] - far[~sector])) <= 1.0
+    # without the step-above check the near ridge is what the line follows, with confidence
+    unchecked = detect_skyline(_u8(img), wrap=True,
+                               params=DetectorParams(above_step_range=(1e9, 2e9)))
+    wrong = unchecked.valid & sector & (np.abs(unchecked.raw_row - far) > 4)
+    assert wrong.sum() >= 20
