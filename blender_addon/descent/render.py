@@ -107,13 +107,15 @@ class DescentRenderer:
         else:
             self.temperature = conduction_temperature_map(self.normals, self.lights,
                                                           thermal_inertia=options.thermal_inertia).astype(np.float32)
-        self._grids = {"nx": np.ascontiguousarray(self.normals[..., 0]),
+        #: node grids sampled at the hits (the Blender path turns them into textures)
+        self.grids = {"nx": np.ascontiguousarray(self.normals[..., 0]),
                        "ny": np.ascontiguousarray(self.normals[..., 1]),
                        "nz": np.ascontiguousarray(self.normals[..., 2]),
                        "albedo": terrain.albedo, "temperature": self.temperature,
                        **{f"lit:{k}": v for k, v in self.lit.items()}}
         self._rays_cam: dict[int, np.ndarray] = {}
-        self._visible_lights = _merge_visible_lights(self.lights, set(self.lit))
+        #: the sources of the visible channel, those sharing a direction merged
+        self.visible_lights = _merge_visible_lights(self.lights, set(self.lit))
         log.info("descent renderer: %s terrain, brdf %s, thermal %s, shadows %s, T %.1f-%.1f K",
                  terrain.spec, options.brdf, options.thermal, options.cast_shadows, self.temperature.min(),
                  self.temperature.max())
@@ -150,7 +152,7 @@ class DescentRenderer:
         """Bilinear value of a scene grid ("nx", "ny", "nz", "albedo", "temperature", "lit:NAME") at world points."""
         out = np.empty(xs.shape[0])
         tr = self.terrain
-        _raycast.sample_bilinear(self._grids[name], tr.x0, tr.y0, tr.res_m, np.ascontiguousarray(xs, np.float64),
+        _raycast.sample_bilinear(self.grids[name], tr.x0, tr.y0, tr.res_m, np.ascontiguousarray(xs, np.float64),
                                  np.ascontiguousarray(ys, np.float64), out)
         return out
 
@@ -162,7 +164,7 @@ class DescentRenderer:
             e = o.ambient * albedo
         else:
             e = np.zeros(albedo.shape)
-        for s in self._visible_lights:
+        for s in self.visible_lights:
             w = s.irradiance_w_m2 / SUN_IRRADIANCE_W_M2
             shade = lit.get(s.name, 1.0)
             if o.brdf == "tm":
@@ -184,8 +186,8 @@ class DescentRenderer:
         n = dirs.shape[0]
         out = {k: np.empty(n) for k in ("range", "visible", "thermal", "x", "y")}
         tr = self.terrain
-        g = self._grids
-        lights = self._visible_lights
+        g = self.grids
+        lights = self.visible_lights
         lit = (np.stack([self.lit[s.name] for s in lights]) if self.lit
                else np.ones((len(lights), 1, 1), np.float32))
         o = self.options

@@ -165,7 +165,7 @@ def visible_material(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy
     if o.brdf != "tm":
         raise InvalidInputError(f"the Blender path renders the memorandum's eq. 9 only, not {o.brdf!r}: use --brdf tm")
     mat, nd, uv = _material("SkylocDescentVisible")
-    g = {k: v[win] for k, v in renderer._grids.items()}
+    g = {k: v[win] for k, v in renderer.grids.items()}
     nrm = nd.node("ShaderNodeVectorMath", operation="NORMALIZE")
     nd.link(nd.texture(_image("descent_normals", np.stack([g["nx"], g["ny"], g["nz"]], axis=-1)), uv),
             nrm.inputs[0])
@@ -174,7 +174,7 @@ def visible_material(renderer: DescentRenderer, win: tuple[slice, slice]) -> bpy
     v = nd.node("ShaderNodeNewGeometry").outputs["Incoming"]
     ndv = nd.dot(n, v)
     total = nd.math("MULTIPLY", rho, o.ambient)
-    for s in renderer._visible_lights:
+    for s in renderer.visible_lights:
         ndl = nd.dot(n, s.direction)
         cos_g = nd.dot(v, s.direction)
         alpha = nd.math("MULTIPLY", nd.math("ADD", cos_g, 1.0), 0.5)
