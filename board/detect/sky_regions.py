@@ -71,7 +71,8 @@ class DetectorParams:
     above_step_window_px: int = 3       # rows each side of a step looked for above the line
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
-    initial_bands: float = 0.2          # > 0: first class fits on this fraction of the seen rows at the top / bottom
+    initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
+                                        # on this fraction of the seen rows at the top / bottom
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
 
 
@@ -303,13 +304,22 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
     ground0 = seen & ~sky0
     if P.initial_bands > 0:
-        # the brightness split can put sunlit ground with a sky of the same grey; the top and the
-        # bottom of the view are sky and ground in every scene with a horizon in view
+        # the brightness split can put sunlit ground with a sky of the same grey.  Where it contradicts
+        # the view (its "sky" fills the bottom of the seen rows, or its "ground" the top), take the top
+        # and the bottom of the view as sky and ground instead: true of any view with a horizon in it
         seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
         band = np.maximum(2, P.initial_bands * n_seen_col)[None, :]
-        sky0 = seen & (seen_rank <= band)
-        ground0 = seen & (seen_rank > n_seen_col[None, :] - band)
+        top_b = seen & (seen_rank <= band)
+        bot_b = seen & (seen_rank > n_seen_col[None, :] - band)
         del seen_rank
+        for c0, c1 in zip(edges[:-1], edges[1:]):
+            t, bo = top_b[:, c0:c1], bot_b[:, c0:c1]
+            sky_at_bottom = (sky0[:, c0:c1] & bo).sum() > 0.5 * max(bo.sum(), 1)
+            ground_at_top = (ground0[:, c0:c1] & t).sum() > 0.5 * max(t.sum(), 1)
+            if sky_at_bottom or ground_at_top:
+                sky0[:, c0:c1] = t
+                ground0[:, c0:c1] = bo
+        del top_b, bot_b
     del top, bottom
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
