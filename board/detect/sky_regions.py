@@ -4,23 +4,29 @@ Where the report's graph looks only at gradients near the line (and so follows s
 inside the terrain, or misses peaks next to them), this detector asks that the region above
 the line look like sky and the region below like ground:
 
-1. Features per pixel: blurred intensity and a texture measure (local standard deviation,
-   the smaller of the windows just above and just below the pixel, so that the measure does
-   not bleed across the line).  Two robust Gaussian classes (sky, ground) per azimuth sector
-   (the sunlit side of a hill can be brighter than the sky, the shaded side darker), spread
-   to every column by linear interpolation between sector centres, give a per-pixel sky
-   probability ``p``; the first split comes from Otsu per sector, the sky class being the one
-   that fills the top of the picture; then the classes are re-fitted on the two sides of the
-   detected line and the line detected again.
+1. Features per pixel: blurred intensity, roughness (RMS of the vertical second difference
+   over the smaller of the windows just above and just below the pixel: a smooth haze gradient
+   or sun halo is not texture, and the measure does not bleed across the line) and, for colour
+   images, log(blue / red).  Robust Gaussian classes (sky, ground) per feature and azimuth
+   sector (the sunlit side of a hill can be brighter than the sky, the shaded side darker),
+   spread to every column by linear interpolation between sector centres, give a per-pixel sky
+   probability ``p`` (naive Bayes; smoothness gives at most ``smooth_evidence_cap`` of sky
+   evidence: hazy distant terrain is smooth too).  First split: Otsu on grey per sector, the
+   sky class being the one that fills the top of the picture, replaced by the top and bottom
+   bands of the view in the sectors where it contradicts them; then the classes are re-fitted
+   on the two sides of the detected line and the line detected again.
 2. Node cost of a boundary just above row ``r`` in column ``c``: the number of pixels it
    misclassifies in that column (sky-like pixels below, ground-like above; scaled, capped)
-   plus the lack of a sky-to-ground step of the right polarity.
+   plus the lack of a sky-to-ground step on the Fisher discriminant of intensity and colour
+   (scaled per column so that sky is 0 and ground 1).
 3. Path: one row per column, any jump between neighbouring columns at a cost per row (cliffs
    allowed), solved exactly by dynamic programming with L1 distance transforms
    (:func:`board.detect.graph_dp.shortest_path_l1`), with 360-degree wrap.
-4. Sub-pixel position from a parabola through the vertical intensity step.
-5. Confidence per column in [0, 1]: step contrast against the noise and the scene contrast,
-   sky/ground consistency of the two sides, saturation, enough seen pixels on both sides;
+4. Sub-pixel position from a parabola through the vertical intensity step (the discriminant's
+   where intensity does not separate the classes).
+5. Confidence per column in [0, 1]: step contrast against the noise and the class contrast,
+   sky/ground consistency of the two sides, saturation (glare), enough seen pixels on both
+   sides, and no sky-to-ground step above the line (a hazy distant ridge the line passed under);
    columns below ``min_confidence`` (and short isolated runs) are masked, never guessed.
 
 Positions are continuous row coordinates with the centre of the top pixel at 0: a line at
