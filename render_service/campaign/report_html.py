@@ -11,7 +11,6 @@ import base64
 import html
 import io
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -279,8 +278,6 @@ def write_report(out: Path, rows: list[dict], summary: dict, ctx, truths: np.nda
                          [[p["index"], f"{p['x']:.1f}", f"{p['y']:.1f}", p["relief_deg"], p["reason"]]
                           for p in c["rejected_poses"]])]
     parts.append("</body></html>")
-    path = out / "report.html"
-    tmp = path.with_name(".report.html.tmp")
-    tmp.write_text("\n".join(parts))
-    os.replace(tmp, path)
-    return path
+    from board.atomic import write_text_atomic  # noqa: PLC0415
+
+    return write_text_atomic(out / "report.html", "\n".join(parts))

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import atomic_path, write_text_atomic
 from board.errors import InvalidInputError, SkylocError
 from render_service.campaign import planning, scoring
 from render_service.campaign import summary as summ
@@ -84,9 +85,7 @@ def _dem_spec(dem: str, profile: Profile) -> str:
 
 
 def _write_json(path: Path, doc) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(doc, indent=2, sort_keys=True, default=_json_default))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(doc, indent=2, sort_keys=True, default=_json_default))
 
 
 def _json_default(o):
@@ -195,9 +194,7 @@ def run_campaign(opt: CampaignOptions) -> dict:
                 "versions": _versions(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
     })
     _write_json(out / "summary.json", summary)
-    tmp = out / ".summary.md.tmp"
-    tmp.write_text(summ.markdown(summary))
-    os.replace(tmp, out / "summary.md")
+    write_text_atomic(out / "summary.md", summ.markdown(summary))
     try:
         from render_service.campaign.report_html import write_report  # noqa: PLC0415
 
@@ -402,13 +399,11 @@ def _gather_rows(ctx: CampaignContext, cases) -> list[dict]:
 
 
 def _write_results(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(scoring.COLUMNS), extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow(r)
-    os.replace(tmp, path)
 
 
 def _fmt(v, spec: str = ".2f") -> str:

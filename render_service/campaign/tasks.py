@@ -187,9 +187,9 @@ def read_row(ctx: CampaignContext, case_id: str) -> dict | None:
 
 
 def _write_json_atomic(path: Path, doc) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(doc, indent=1, sort_keys=True, default=float))
-    os.replace(tmp, path)
+    from board.atomic import write_text_atomic  # noqa: PLC0415
+
+    write_text_atomic(path, json.dumps(doc, indent=1, sort_keys=True, default=float))
 
 
 def case_task(ctx: CampaignContext, case: dict, cand: dict, truth_el: np.ndarray, source_ready=None) -> dict:
