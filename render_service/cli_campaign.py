@@ -56,7 +56,6 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
     """
     from render_service.campaign import CampaignOptions, run_campaign  # noqa: PLC0415
     from render_service.campaign.profiles import parse_setting  # noqa: PLC0415
-
     from render_service.engine import security_from_files  # noqa: PLC0415
 
     security = None
