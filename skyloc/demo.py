@@ -6,7 +6,8 @@
    partial panorama) from an independent fine-azimuth render;
 4. locate it (lost in space), compare with the truth and draw the score map and skyline overlay;
 5. if Blender is available, render a binary panorama at the same pose, extract its skyline and locate again;
-6. then run the test campaign (``skyloc campaign --profile ci``, one pose per look) on Dask and print its summary.
+6. then run the test campaign (``skyloc campaign --profile ci``, one pose per look) on Dask and print its summary;
+7. simulate an icy-moon descent (visible + thermal cameras, IMU, altimeter) and run the dual-mode EKF-SLAM on it.
 
 Everything is written under ``demo_out/`` (or ``--out``); the summary is printed at the end.
 """
@@ -43,7 +44,7 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     summary: dict = {}
     t = time.perf_counter()
     dem = synthesize("mars", size_m=terrain_km * 1000, res_m=5.0, seed=seed, out_path=out / "terrain_mars.tif")
-    _say(f"[1/6] procedural Mars terrain: {dem} ({terrain_km:.0f} x {terrain_km:.0f} km at 5 m, seed {seed}) "
+    _say(f"[1/7] procedural Mars terrain: {dem} ({terrain_km:.0f} x {terrain_km:.0f} km at 5 m, seed {seed}) "
          f"in {time.perf_counter() - t:.1f} s")
 
     from osgeo import gdal
@@ -60,7 +61,7 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
                          terrain_dir=out / "terrain_multires", progress=True)
     dt = time.perf_counter() - t
     s = db.summary()
-    _say(f"[2/6] skyline database {db_path}: {s['grid']['nx']} x {s['grid']['ny']} positions x "
+    _say(f"[2/7] skyline database {db_path}: {s['grid']['nx']} x {s['grid']['ny']} positions x "
          f"{s['n_azimuth']} azimuths, {s['size_bytes'] / 1e6:.1f} MB, {dt:.1f} s "
          f"({s['positions'] / dt:.0f} positions/s including terrain preparation)")
     summary["db"] = {"path": str(db_path), "positions": s["positions"], "seconds": dt, "size_bytes": s["size_bytes"]}
@@ -76,13 +77,13 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     q = mask_arc(q, start_deg=-121.0, width_deg=242.0)
     sky = Skyline(q, meta={"source": "demo: ray-marched at 0.1 deg, tilted, noisy, 242 deg"})
     sky.save(out / "query_skyline.json")
-    _say(f"[3/6] query skyline at x={true_x:.1f} y={true_y:.1f} (off grid), heading {heading:.1f}, "
+    _say(f"[3/7] query skyline at x={true_x:.1f} y={true_y:.1f} (off grid), heading {heading:.1f}, "
          f"pitch {pitch}, roll {roll}, 242 deg seen, noise 0.05 deg -> {out / 'query_skyline.json'}")
 
     fix = locate(db, sky, mode="lost")
     err = math.hypot(fix.x - true_x, fix.y - true_y)
     herr = abs((fix.heading_deg - heading + 180) % 360 - 180)
-    _say(f"[4/6] lost-in-space fix: x={fix.x:.1f} y={fix.y:.1f} heading {fix.heading_deg:.2f} "
+    _say(f"[4/7] lost-in-space fix: x={fix.x:.1f} y={fix.y:.1f} heading {fix.heading_deg:.2f} "
          f"pitch {fix.pitch_deg:.2f} roll {fix.roll_deg:.2f} | status {fix.status} "
          f"sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m, {fix.sigma_heading_deg:.2f} deg | "
          f"error {err:.2f} m, heading error {herr:.2f} deg, {fix.elapsed_s:.2f} s")
@@ -111,11 +112,15 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
         try:
             summary["blender"] = _blender_leg(out, dem, db, true_x, true_y, heading, pitch, roll, height)
         except ImportError as exc:
-            _say(f"[5/6] Blender leg skipped ({exc})")
+            _say(f"[5/7] Blender leg skipped ({exc})")
         try:
             summary["campaign"] = _campaign_leg(out, seed)
         except ImportError as exc:
-            _say(f"[6/6] campaign skipped ({exc})")
+            _say(f"[6/7] campaign skipped ({exc})")
+    try:
+        summary["descent"] = _descent_leg(out, seed)
+    except ImportError as exc:
+        _say(f"[7/7] descent skipped ({exc})")
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     _say(f"done: summary in {out / 'summary.json'}")
     return summary
@@ -140,12 +145,12 @@ def _blender_leg(out, dem, db, x, y, heading, pitch, roll, height) -> dict:
                   dem=str(dem), build=False)
     res = extract_from_panorama(pano_dir)
     if res.skyline is None:
-        _say(f"[5/6] Blender binary panorama {pano_dir}: extraction {res.status} ({res.reason})")
+        _say(f"[5/7] Blender binary panorama {pano_dir}: extraction {res.status} ({res.reason})")
         return {"status": res.status, "reason": res.reason}
     fix = locate(db, res.skyline, mode="lost")
     err = math.hypot(fix.x - x, fix.y - y)
     herr = abs((fix.heading_deg - heading + 180) % 360 - 180)
-    _say(f"[5/6] Blender binary panorama {pano_dir} -> extracted skyline ({res.status}, "
+    _say(f"[5/7] Blender binary panorama {pano_dir} -> extracted skyline ({res.status}, "
          f"{res.skyline.coverage_deg:.0f} deg seen) -> fix error {err:.2f} m, heading error {herr:.2f} deg, "
          f"pitch {fix.pitch_deg:.2f} roll {fix.roll_deg:.2f}, status {fix.status} ({time.perf_counter() - t:.1f} s)")
     return {"error_m": err, "heading_error_deg": herr, "status": fix.status}
@@ -166,12 +171,44 @@ def _campaign_leg(out: Path, seed: int) -> dict:
 
     t = time.perf_counter()
     cdir = out / "campaign"
-    _say(f"[6/6] test campaign (profile ci, one pose per look, seed {seed}) on a LocalCluster -> {cdir}")
+    _say(f"[6/7] test campaign (profile ci, one pose per look, seed {seed}) on a LocalCluster -> {cdir}")
     s = run_campaign(CampaignOptions(out=cdir, dem="procedural:mars:7", profile="ci", seed=seed, workers=2,
                                      overrides=DEMO_CAMPAIGN, progress=True, say=lambda m: _say("      " + m)))
     _say(f"      campaign: {s['campaign']['rows']} cases in {time.perf_counter() - t:.0f} s; "
          f"{cdir / 'results.csv'}, {cdir / 'report.html'}")
     return {"rows": s["campaign"]["rows"], "groups": s["groups"], "report": str(cdir / "report.html")}
+
+
+#: The demo's descent: trajectory 1 of the memorandum's ten, the first frames, both cameras.
+DEMO_DESCENT_FRAMES = 12
+
+
+def _descent_leg(out: Path, seed: int) -> dict:
+    """Icy-moon descent: simulate one trial over procedural Europa (visible + thermal, IMU, altimeter) and run
+    the on-board EKF-SLAM in dual mode on it (``skyloc sim descent`` then ``skyloc descent run``)."""
+    from blender_addon.descent.simulate import DescentConfig, simulate_trial
+    from board.descent.metrics import ate_m, error_growth_percent, groundtruth_at
+    from board.descent.runner import run_sequence
+    from board.descent.sequence import read_sequence
+
+    t = time.perf_counter()
+    seq_dir = out / "descent" / "traj01_trial00"
+    cfg = DescentConfig(terrain=f"procedural:europa:{seed}", trajectory=1, trial=0, seed=seed,
+                        frames=DEMO_DESCENT_FRAMES)
+    simulate_trial(cfg, seq_dir, overwrite=True)
+    _say(f"[7/7] descent over procedural Europa: trajectory 1, {DEMO_DESCENT_FRAMES} frame pairs (visible + "
+         f"thermal 640 x 480), IMU, altimeter -> {seq_dir} ({time.perf_counter() - t:.0f} s)")
+    seq = read_sequence(seq_dir)
+    res = run_sequence(seq, "dual", seed=seed)
+    gt = groundtruth_at(seq.groundtruth, res.tum[:, 0])
+    e_pct, _ = error_growth_percent(res.tum, gt)
+    ate = ate_m(res.tum, gt)
+    step = float(np.mean(res.step_ms))
+    _say(f"      dual-mode EKF-SLAM: {res.tum.shape[0]} frames, final position error "
+         f"{float(np.linalg.norm(res.tum[-1, 1:4] - gt[-1, 1:4])):.2f} m, ATE {ate:.2f} m, error growth E "
+         f"{e_pct:.2f} %, {step:.0f} ms per step ({time.perf_counter() - t:.0f} s in all)")
+    return {"sequence": str(seq_dir), "frames": int(res.tum.shape[0]), "E_percent": e_pct, "ate_m": ate,
+            "step_ms": step}
 
 
 def main(argv: list[str] | None = None) -> int:
