@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -115,7 +116,7 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
                 tmp_dir = tempfile.mkdtemp(prefix="skyloc-dask-tls-")  # mode 0700
             security = generate_tls_files(Path(tls_dir or tmp_dir)).security()
         try:
-            with _http_config(dashboard):
+            with _http_config(dashboard), _without_blender_paths():
                 cluster = LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                                        processes=processes, host="127.0.0.1", scheduler_port=0, protocol="tls://",
                                        security=security, dashboard_address=dashboard, worker_dashboard_address=None,
@@ -141,6 +142,37 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
             log.warning("closing Dask: %s", exc)
         if tmp_dir is not None:
             shutil.rmtree(tmp_dir, ignore_errors=True)
+
+
+@contextmanager
+def _without_blender_paths() -> Iterator[None]:
+    """``sys.path`` without the folders Blender's module adds once ``bpy`` is imported, while workers spawn.
+
+    Spawned worker processes start from the parent's ``sys.path``; Blender's ``scripts/modules`` holds a
+    ``bpy`` package that only works inside Blender (``No module named '_bpy'``), and it would shadow the
+    real module in every worker of a process that had imported bpy (the demo, a script inside Blender).
+    """
+    bpy = sys.modules.get("bpy")
+    if bpy is None or not getattr(bpy, "__file__", None):
+        yield
+        return
+    f = os.path.abspath(bpy.__file__)  # .../site-packages/bpy/5.0/scripts/modules/bpy/__init__.py once loaded
+    cut = f.find(f"{os.sep}bpy{os.sep}")
+    roots = [f[:cut + 4] if cut >= 0 else os.path.dirname(f)]
+    user = os.environ.get("BLENDER_USER_RESOURCES")
+    if user:
+        roots.append(os.path.abspath(user))
+    saved = list(sys.path)
+
+    def blender_scripts(p: str) -> bool:
+        a = os.path.abspath(p)
+        return any(a.startswith(r + os.sep) and f"{os.sep}scripts" in a[len(r):] for r in roots)
+
+    sys.path[:] = [p for p in sys.path if not blender_scripts(p)]
+    try:
+        yield
+    finally:
+        sys.path[:] = saved
 
 
 def default_workers() -> int:
