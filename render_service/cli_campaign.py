@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from render_service.cli_tls import check_tls_options, tls_client_options
+
 log = logging.getLogger(__name__)
 
 
@@ -23,12 +25,7 @@ log = logging.getLogger(__name__)
 @click.option("--scheduler", default=None,
               help="Dask scheduler address (tls://host:8786); default a LocalCluster on this machine (mutual TLS, "
                    "credentials generated for the run).")
-@click.option("--tls-ca-file", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="CA certificate (PEM) of the --scheduler's cluster.")
-@click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="Client certificate (PEM) for the --scheduler.")
-@click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="Key of --tls-cert (PEM), unless appended to it.")
+@tls_client_options
 @click.option("--workers", default=2, show_default=True, type=click.IntRange(1, 256),
               help="LocalCluster worker processes (one thread each: Blender is not thread-safe).")
 @click.option("--body", default=None, help="Body of a DEM whose CRS does not say (earth, mars, moon, europa).")
@@ -59,12 +56,7 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
     from render_service.engine import security_from_files  # noqa: PLC0415
 
     security = None
-    if tls_ca_file or tls_cert or tls_key:
-        if not scheduler:
-            raise click.BadParameter("--tls-* options are for a --scheduler: the LocalCluster generates its own "
-                                     "credentials", param_hint="--tls-cert")
-        if not (tls_ca_file and tls_cert):
-            raise click.BadParameter("give --tls-ca-file and --tls-cert (and --tls-key)", param_hint="--tls-cert")
+    if check_tls_options(scheduler, tls_ca_file, tls_cert, tls_key):
         security = security_from_files(ca_file=tls_ca_file, cert_file=tls_cert, key_file=tls_key)
     overrides = dict(parse_setting(s) for s in settings)
     overrides |= {"n_poses": poses, "n_acquisitions": acquisitions, "pano_width": pano_width, "samples": samples}

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from render_service.cli_tls import check_tls_options, tls_client_options
+
 log = logging.getLogger(__name__)
 
 
@@ -19,12 +21,7 @@ log = logging.getLogger(__name__)
               help="Dask scheduler address (tls://host:8786) instead of a LocalCluster; its credentials come from "
                    "--tls-ca-file/--tls-cert/--tls-key or Dask's security config (distributed.comm.tls.*). "
                    "The default LocalCluster uses mutual TLS with credentials generated in DATA/.dask-tls.")
-@click.option("--tls-ca-file", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="CA certificate (PEM) of the --scheduler's cluster.")
-@click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="This server's client certificate (PEM) for the --scheduler.")
-@click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="The key of --tls-cert (PEM), unless appended to it.")
+@tls_client_options
 @click.option("--dashboard", default=None, metavar="127.0.0.1:PORT",
               help="Serve the LocalCluster's Dask dashboard on this loopback address (none by default).")
 @click.option("--workers", "n_workers", default=None, type=click.IntRange(1, 256),
@@ -42,11 +39,7 @@ def serve(host: str, port: int, data_dir: Path, scheduler: str | None, tls_ca_fi
     from render_service.main import create_app  # noqa: PLC0415
     from render_service.settings import ServiceSettings  # noqa: PLC0415
 
-    if (tls_ca_file or tls_cert or tls_key) and not scheduler:
-        raise click.BadParameter("--tls-ca-file/--tls-cert/--tls-key are for a --scheduler: the LocalCluster "
-                                 "generates its own credentials", param_hint="--tls-cert")
-    if tls_ca_file and not tls_cert:
-        raise click.BadParameter("give --tls-cert (and --tls-key) with --tls-ca-file", param_hint="--tls-cert")
+    check_tls_options(scheduler, tls_ca_file, tls_cert, tls_key)
     overrides = {"host": host, "port": port, "data_dir": data_dir, "scheduler": scheduler, "token_file": token_file,
                  "tls_ca_file": tls_ca_file, "tls_cert": tls_cert, "tls_key": tls_key, "dashboard": dashboard}
     if n_workers is not None:

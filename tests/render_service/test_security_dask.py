@@ -168,3 +168,22 @@ def test_a_dashboard_asked_for_is_served_on_loopback_only():
                            if not a.startswith("127.")), None)
             if public is not None:  # not listening on the machine's other addresses
                 assert s.connect_ex((public, port)) != 0
+
+
+def test_tls_options_are_for_a_scheduler_and_need_a_client_certificate(tmp_path):
+    """skyloc serve and skyloc campaign share the TLS option rules (render_service/cli_tls.py)."""
+    from click.testing import CliRunner
+
+    from skyloc.cli import main
+
+    pem = tmp_path / "x.pem"
+    pem.write_text("not used")
+    r = CliRunner()
+    for cmd in (["serve", "--data", str(tmp_path / "d")], ["campaign", "--out", str(tmp_path / "c")]):
+        res = r.invoke(main, [*cmd, "--tls-cert", str(pem)])
+        assert res.exit_code == 2 and "are for a --scheduler" in res.output
+        res = r.invoke(main, [*cmd, "--scheduler", "tls://127.0.0.1:1", "--tls-ca-file", str(pem)])
+        assert res.exit_code == 2 and "give --tls-cert" in res.output
+        res = r.invoke(main, [*cmd, "--scheduler", "tls://127.0.0.1:1", "--tls-cert", str(pem)])
+        assert res.exit_code == 2 and "give --tls-ca-file" in res.output
+    assert not (tmp_path / "d").exists() and not (tmp_path / "c").exists()
