@@ -33,11 +33,6 @@ class Site:
     step_m: float
     dem_bounds: tuple[float, float, float, float]
 
-    @property
-    def origin(self) -> tuple[float, float]:
-        """The grid's first node (x, y): ``GridSpec.from_center`` puts nodes at centre + k * step."""
-        return self.center_x, self.center_y
-
     def to_dict(self) -> dict:
         return asdict(self)
 

@@ -254,7 +254,7 @@ def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str
     body = body_from_name(opt.body) if opt.body else info.body
     ctx = CampaignContext(out_dir=str(out), dem_path=str(dem_path), dem_spec=spec, body=body.name,
                           site_xy=center, sim_half_m=profile.area_m / 2, db_path=str(db_path),
-                          terrain_dir=str(tdir), truth_az_deg=None, profile=profile.to_dict(), n_azimuth=360,
+                          terrain_dir=str(tdir), profile=profile.to_dict(), n_azimuth=360,
                           camera_height_m=h, large_db_path=large)
     return ctx, SkyDB.open(db_path)
 

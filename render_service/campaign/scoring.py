@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from board.conventions import wrap_deg180
+
 #: A fix farther than this from the truth is wrong (metres), or with a heading error beyond (degrees).
 WRONG_M = 25.0
 WRONG_HEADING_DEG = 2.0
@@ -129,7 +131,7 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
     fix = st.fix
     if fix is not None:
         err = math.hypot(fix.x - cd["x"], fix.y - cd["y"])
-        herr = abs(float((fix.heading_deg - cd["heading_deg"] + 180.0) % 360.0 - 180.0))
+        herr = abs(float(wrap_deg180(fix.heading_deg - cd["heading_deg"])))
         wrong = err > WRONG_M or herr > WRONG_HEADING_DEG
         row.update({
             "fix_x": _r(fix.x, 3), "fix_y": _r(fix.y, 3), "fix_heading_deg": _r(fix.heading_deg),

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import shutil
 import time
@@ -44,7 +43,6 @@ class CampaignContext:
     sim_half_m: float
     db_path: str
     terrain_dir: str
-    truth_az_deg: tuple[float, ...] | None
     profile: dict
     n_azimuth: int
     camera_height_m: float
@@ -332,8 +330,3 @@ def fix_pictures(fix, name: str):
     """A picture payload of a Fix (``fix.pictures.<name>``; older Fix objects held them directly)."""
     pics = getattr(fix, "pictures", None)
     return getattr(pics if pics is not None else fix, name, None)
-
-
-def wrap180(deg: float) -> float:
-    """Angle difference wrapped to [-180, 180) degrees."""
-    return float((deg + 180.0) % 360.0 - 180.0) if math.isfinite(deg) else float("nan")
