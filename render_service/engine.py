@@ -10,7 +10,8 @@ so that the cluster's security is defined once:
   ``DATA/.dask-tls``).  A local user without the key cannot connect, so cannot run code on the
   workers or read the data through them;
 * no dashboard (scheduler or workers) unless ``dashboard`` names one, and then only on a loopback
-  address;
+  address and behind ``dashboard_token`` (every route, page and websocket answers 401 without it:
+  :mod:`render_service.dashboard_auth`); workers never serve HTTP routes;
 * an existing scheduler (``scheduler="tls://host:8786"``) is reached with ``security`` (see
   :func:`security_from_files`, the ``--tls-ca-file/--tls-cert/--tls-key`` options) or, when None, with
   Dask's own configuration (``distributed.comm.tls.*``, e.g. a ``~/.config/dask/*.yaml`` security
@@ -78,14 +79,15 @@ def _http_config(dashboard: str | None):
     import dask  # noqa: PLC0415
 
     if dashboard:
-        return dask.config.set({})
+        return dask.config.set({"distributed.worker.http.routes": []})
     return dask.config.set({"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []})
 
 
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per_worker: int = 1,
                 processes: bool = True, security=None, dashboard: str | None = None,
-                timeout_s: float = 30.0, tls_dir: str | os.PathLike | None = None) -> Iterator["object"]:
+                dashboard_token: str | None = None, timeout_s: float = 30.0,
+                tls_dir: str | os.PathLike | None = None) -> Iterator["object"]:
     """A ``distributed.Client`` on a new TLS LocalCluster (``scheduler`` None) or on ``scheduler``.
 
     scheduler : address of an existing scheduler (``tls://host:8786``); None starts a LocalCluster
@@ -93,6 +95,8 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
     security : a ``distributed.security.Security``; None: generated credentials for a LocalCluster,
         Dask's configuration for an existing scheduler
     dashboard : a loopback dashboard address to serve (e.g. ``127.0.0.1:8787``); None serves none
+    dashboard_token : the token every dashboard request must carry (Bearer, or the Basic password);
+        required with ``dashboard`` (InvalidInputError without it)
     tls_dir : where a LocalCluster's credentials are written (None: a temporary folder, removed on exit)
     The cluster (if started here) and the client are closed on exit.
     """
@@ -109,6 +113,9 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
         client = Client(scheduler, timeout=timeout_s, security=security)
     else:
         dashboard = check_dashboard_address(dashboard)
+        if dashboard and not dashboard_token:
+            raise InvalidInputError("the Dask dashboard is only served behind a token: set SKYLOC_TOKEN or "
+                                    "--token-file, or start without --dashboard")
         if security is None:
             from render_service.dask_tls import generate_tls_files  # noqa: PLC0415
 
@@ -116,12 +123,17 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
                 tmp_dir = tempfile.mkdtemp(prefix="skyloc-dask-tls-")  # mode 0700
             security = generate_tls_files(Path(tls_dir or tmp_dir)).security()
         try:
-            with _http_config(dashboard), _without_blender_paths():
+            with _http_config(dashboard), _dashboard_gate(dashboard_token if dashboard else None), \
+                    _without_blender_paths():
                 cluster = LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                                        processes=processes, host="127.0.0.1", scheduler_port=0, protocol="tls://",
                                        security=security, dashboard_address=dashboard, worker_dashboard_address=None,
                                        scheduler_kwargs=None if dashboard else {"dashboard_address": "127.0.0.1:0"},
                                        silence_logs=logging.WARNING)
+            if dashboard:
+                from render_service.dashboard_auth import assert_gated  # noqa: PLC0415
+
+                assert_gated(cluster.scheduler)
             client = Client(cluster, security=security, timeout=timeout_s)
         except BaseException:
             if cluster is not None:
@@ -142,6 +154,18 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
             log.warning("closing Dask: %s", exc)
         if tmp_dir is not None:
             shutil.rmtree(tmp_dir, ignore_errors=True)
+
+
+@contextmanager
+def _dashboard_gate(token: str | None) -> Iterator[None]:
+    """Servers started inside build their HTTP app behind ``token`` (nothing changes when None)."""
+    if token is None:
+        yield
+        return
+    from render_service.dashboard_auth import gated_dashboard  # noqa: PLC0415
+
+    with gated_dashboard(token):
+        yield
 
 
 @contextmanager

@@ -180,6 +180,9 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     token = load_token(settings)
     check_startup(settings, token)
     check_dashboard_address(settings.dashboard)  # refused at start, not later in the runner thread
+    if settings.dashboard and token is None:
+        raise InvalidInputError("--dashboard needs a token (the dashboard is served behind it): set SKYLOC_TOKEN "
+                                "or pass --token-file FILE, or start without --dashboard")
     check_data_dir(settings.data_dir)
     lock = DataDirLock(settings.data_dir)
     try:

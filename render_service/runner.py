@@ -149,11 +149,13 @@ class JobRunner:
 
     def _connect(self, stack: ExitStack) -> None:
         from render_service.engine import dask_client  # noqa: PLC0415
+        from render_service.security import load_token  # noqa: PLC0415
 
         s = self.settings
         self.client = stack.enter_context(dask_client(
             s.scheduler, n_workers=s.n_workers, threads_per_worker=s.threads_per_worker,
-            security=cluster_security(s), dashboard=s.dashboard, tls_dir=s.data_dir / TLS_DIR_NAME))
+            security=cluster_security(s), dashboard=s.dashboard,
+            dashboard_token=load_token(s) if s.dashboard else None, tls_dir=s.data_dir / TLS_DIR_NAME))
         numba_threads = max(1, (os.cpu_count() or 1) // s.n_workers) if self.local else None
         self.client.register_plugin(TerrainPlugin(numba_threads=numba_threads))
 

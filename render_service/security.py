@@ -71,7 +71,8 @@ def check_startup(settings: ServiceSettings, token: str | None) -> None:
         log.warning("no token configured: the API is open to every local user of this machine")
 
 
-def _token_from_header(header: str) -> str | None:
+def token_from_header(header: str) -> str | None:
+    """The token an ``Authorization`` header's value carries (Bearer, or the Basic password), else None."""
     scheme, _, value = header.partition(" ")
     scheme = scheme.lower()
     if scheme == "bearer":
@@ -86,7 +87,7 @@ def _token_from_header(header: str) -> str | None:
 
 
 def _presented_token(request: Request) -> str | None:
-    return _token_from_header(request.headers.get("authorization", ""))
+    return token_from_header(request.headers.get("authorization", ""))
 
 
 #: Paths served without a token: liveness, the API schema and its documentation pages and their assets.
@@ -108,7 +109,7 @@ class TokenAuth:
         """None when ``authorization`` (the header's value) carries the token, else (reason, headers)."""
         if self._token is None:
             return None
-        given = _token_from_header(authorization)
+        given = token_from_header(authorization)
         challenge = {"WWW-Authenticate": PAGE_CHALLENGE if path == "/" else API_CHALLENGE}
         if given is None:
             return "missing credentials: send 'Authorization: Bearer <token>'", challenge

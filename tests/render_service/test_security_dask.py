@@ -157,17 +157,115 @@ def test_scheduler_credentials_from_files(cluster, tmp_path):
         security_from_files(ca_file=cert, cert_file=cert, key_file=tmp_path / "missing.pem")
 
 
-def test_a_dashboard_asked_for_is_served_on_loopback_only():
-    """Positive control of the no-routes test: with ``dashboard`` the same routes answer, on 127.0.0.1."""
-    with dask_client(n_workers=1, processes=False, dashboard="127.0.0.1:0") as client:
-        port = client.scheduler_info()["services"]["dashboard"]
-        assert httpx.get(f"http://127.0.0.1:{port}/json/identity.json", timeout=10).status_code == 200
-        with socket.socket() as s:
-            s.settimeout(2)
-            public = next((a for a in socket.gethostbyname_ex(socket.gethostname())[2]
-                           if not a.startswith("127.")), None)
-            if public is not None:  # not listening on the machine's other addresses
-                assert s.connect_ex((public, port)) != 0
+DASH_TOKEN = "dashboard-token-0123456789abcdef"
+
+
+@pytest.fixture(scope="module")
+def dashboard_port():
+    """A LocalCluster serving its dashboard (Bokeh pages included) behind DASH_TOKEN on a loopback port."""
+    with dask_client(n_workers=1, dashboard="127.0.0.1:0", dashboard_token=DASH_TOKEN) as client:
+        yield client, client.scheduler_info()["services"]["dashboard"]
+
+
+def _basic(password: str) -> str:
+    import base64
+
+    return "Basic " + base64.b64encode(f"anyone:{password}".encode()).decode()
+
+
+#: routes a local user would try: the pages, their data, the scheduler's address, metrics, the worker proxy
+DASHBOARD_ROUTES = ("/status", "/json/identity.json", "/sitemap.json", "/metrics", "/health", "/individual-plots.json",
+                    "/proxy/8786/127.0.0.1/status", "/statics/css/base.css", "/no-such-route")
+
+
+def test_a_dashboard_needs_a_token():
+    from render_service.main import create_app
+    from render_service.settings import ServiceSettings
+
+    with pytest.raises(InvalidInputError, match="token"):
+        with dask_client(n_workers=1, processes=False, dashboard="127.0.0.1:0"):
+            pass
+    with pytest.raises(InvalidInputError, match="--dashboard needs a token"):  # at start-up
+        create_app(ServiceSettings(data_dir=Path(os.environ.get("TMPDIR", "/tmp")) / "skyloc-dash-no-token",
+                                   start_cluster=False, dashboard="127.0.0.1:8790"))
+
+
+def test_the_dashboard_refuses_every_route_without_the_token(dashboard_port):
+    _, port = dashboard_port
+    base = f"http://127.0.0.1:{port}"
+    for route in DASHBOARD_ROUTES:
+        for headers in ({}, {"Authorization": "Bearer wrong-token-0123456789"}, {"Authorization": _basic("wrong")},
+                        {"Authorization": "Bearer"}, {"Cookie": f"token={DASH_TOKEN}"}):
+            r = httpx.get(base + route, headers=headers, timeout=10)
+            assert r.status_code == 401, (route, headers, r.status_code)
+            assert "scheduler" not in r.text.lower() and "tls://" not in r.text, route  # nothing leaks
+        assert r.headers["www-authenticate"].startswith("Basic")  # a browser asks for it
+
+
+def test_the_dashboard_answers_with_the_token(dashboard_port):
+    client, port = dashboard_port
+    base = f"http://127.0.0.1:{port}"
+    for auth in (f"Bearer {DASH_TOKEN}", _basic(DASH_TOKEN)):
+        ident = httpx.get(base + "/json/identity.json", headers={"Authorization": auth}, timeout=10)
+        assert ident.status_code == 200 and ident.json()["address"] == client.scheduler.address
+        page = httpx.get(base + "/status", headers={"Authorization": auth}, timeout=30)
+        assert page.status_code == 200 and "bokeh" in page.text.lower()  # the real dashboard, not a stub
+        assert httpx.get(base + "/no-such-route", headers={"Authorization": auth}, timeout=10).status_code == 404
+
+
+def test_the_dashboard_websocket_and_bodies_are_refused_before_use(dashboard_port):
+    """Bokeh's live updates come over a websocket: its handshake needs the token too; a POST body is not read."""
+    import asyncio
+
+    from tornado.httpclient import HTTPClientError, HTTPRequest
+    from tornado.websocket import websocket_connect
+
+    _, port = dashboard_port
+
+    async def handshake(headers):
+        try:
+            conn = await websocket_connect(HTTPRequest(f"ws://127.0.0.1:{port}/status/ws", headers=headers))
+        except HTTPClientError as exc:
+            return exc.code
+        conn.close()
+        return 101
+
+    assert asyncio.run(handshake({})) == 401
+    assert asyncio.run(handshake({"Authorization": "Bearer wrong-token-0123456789"})) == 401
+    assert asyncio.run(handshake({"Authorization": f"Bearer {DASH_TOKEN}"})) != 401  # reaches Bokeh
+
+    def endless_body():
+        for _ in range(64 * 1024):  # up to 4 GiB if the server kept reading
+            yield b"\0" * 65536
+
+    with httpx.Client(timeout=30) as http:
+        try:
+            r = http.post(f"http://127.0.0.1:{port}/status", content=endless_body())
+            assert r.status_code == 401
+        except (httpx.RemoteProtocolError, httpx.WriteError, httpx.ReadError):
+            pass  # answered 401 and closed while the client was still sending: the body was not read
+
+
+def test_a_dashboard_asked_for_is_served_on_loopback_only(dashboard_port):
+    """Positive control of the no-routes test: with ``dashboard`` the routes answer (with the token), on 127.0.0.1."""
+    _, port = dashboard_port
+    r = httpx.get(f"http://127.0.0.1:{port}/json/identity.json", headers={"Authorization": f"Bearer {DASH_TOKEN}"},
+                  timeout=10)
+    assert r.status_code == 200
+    with socket.socket() as s:
+        s.settimeout(2)
+        public = next((a for a in socket.gethostbyname_ex(socket.gethostname())[2]
+                       if not a.startswith("127.")), None)
+        if public is not None:  # not listening on the machine's other addresses
+            assert s.connect_ex((public, port)) != 0
+
+
+def test_workers_serve_no_http_routes_with_a_dashboard(dashboard_port):
+    client, _ = dashboard_port
+    for w in client.scheduler_info()["workers"].values():
+        port = w.get("services", {}).get("dashboard")
+        if port is not None:
+            assert httpx.get(f"http://127.0.0.1:{port}/health", timeout=5).status_code == 404
 
 
 def test_tls_options_are_for_a_scheduler_and_need_a_client_certificate(tmp_path):
@@ -187,3 +285,20 @@ def test_tls_options_are_for_a_scheduler_and_need_a_client_certificate(tmp_path)
         res = r.invoke(main, [*cmd, "--scheduler", "tls://127.0.0.1:1", "--tls-cert", str(pem)])
         assert res.exit_code == 2 and "give --tls-ca-file" in res.output
     assert not (tmp_path / "d").exists() and not (tmp_path / "c").exists()
+
+
+def test_the_service_serves_its_dashboard_behind_its_own_token(tmp_path):
+    """``skyloc serve --dashboard``: the runner's LocalCluster gets the API's token for its dashboard."""
+    from fastapi.testclient import TestClient
+
+    from render_service.main import create_app
+    from render_service.settings import ServiceSettings
+
+    settings = ServiceSettings(data_dir=tmp_path / "data", token=DASH_TOKEN, n_workers=1, dashboard="127.0.0.1:0")
+    with TestClient(create_app(settings), raise_server_exceptions=False) as api:
+        runner = api.app.state.runner
+        assert runner.wait_ready(120) and runner.error is None, runner.error
+        port = runner.client.scheduler_info()["services"]["dashboard"]
+        url = f"http://127.0.0.1:{port}/json/identity.json"
+        assert httpx.get(url, timeout=10).status_code == 401
+        assert httpx.get(url, headers={"Authorization": f"Bearer {DASH_TOKEN}"}, timeout=10).status_code == 200
