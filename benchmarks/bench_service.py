@@ -169,7 +169,7 @@ def dem_memory(size: int = 30_000) -> list[str]:
                  "API process (peak RSS, `ru_maxrss`):\n",
                  "| GDAL block cache | answer | RSS before upload (MB) | peak (MB) |", "| --- | ---: | ---: | ---: |"]
         for cache, r in rows:
-            label = "bounded (64 MiB + one block row while validating)" if cache == "bounded" else "GDAL default (5 % of RAM)"
+            label = "bounded (64 MiB + 4 blocks while validating), block-by-block scan" if cache == "bounded" else "GDAL default (5 % of RAM)"
             lines.append(f"| {label} | {r['status']} | {r['before_mb']:.0f} | {r['peak_mb']:.0f} |")
         return lines
     finally:

@@ -1,12 +1,12 @@
 """GDAL's block cache in the API process, sized so that DEM validation runs in bounded memory.
 
 GDAL keeps every block it reads in one process-wide cache, by default 5 % of RAM: validating a huge
-sparse GeoTIFF (the decimated nodata scan of :func:`blender_addon.terrain.dem.dem_info` touches every
-block) grew the API process by 1.1 GB.  The cache is capped at ``gdal_cache_bytes``; while one upload is
-validated it is raised by one row of the file's blocks, so that the scan, which walks the raster row by
-row, reads each block once instead of re-reading evicted ones (a cache smaller than a block row made
-the 30000 x 30000 scan about 4 times slower).  Validations
-run one at a time (a lock), so the process never holds more than one such cache.
+sparse GeoTIFF (the nodata scan of :func:`blender_addon.terrain.dem.dem_info` touches every block) grew
+the API process by 1.1 GB.  The cache is capped at ``gdal_cache_bytes``.  The scan walks the file block
+by block (:mod:`blender_addon.terrain.raster_sample`), so it needs one block in the cache to read each
+block once; while one upload is validated the cap is raised by a few of the file's blocks so that even a
+file with blocks larger than the cap is not decoded again for every sampled row.  Validations run one at
+a time (a lock), so the process never holds more than one such cache.
 """
 from __future__ import annotations
 
@@ -30,8 +30,12 @@ def set_cache_max(nbytes: int) -> None:
     gdal.SetCacheMax(int(nbytes))
 
 
-def block_row_bytes(path: Path, allowed_drivers: tuple[str, ...]) -> int:
-    """Bytes of one row of band 1's blocks of the raster at ``path`` (0 when GDAL cannot open it)."""
+#: blocks of the file added to the cache while it is validated
+VALIDATION_BLOCKS = 4
+
+
+def block_bytes(path: Path, allowed_drivers: tuple[str, ...]) -> int:
+    """Bytes of one block of band 1 of the raster at ``path`` (0 when GDAL cannot open it)."""
     from osgeo import gdal  # noqa: PLC0415
 
     gdal.UseExceptions()
@@ -44,14 +48,14 @@ def block_row_bytes(path: Path, allowed_drivers: tuple[str, ...]) -> int:
     band = ds.GetRasterBand(1)
     bx, by = band.GetBlockSize()
     itemsize = max(1, gdal.GetDataTypeSize(band.DataType) // 8)
-    return -(-ds.RasterXSize // max(1, bx)) * bx * by * itemsize
+    return max(1, bx) * max(1, by) * itemsize
 
 
 @contextmanager
 def validation_cache(path: Path, *, base_bytes: int, allowed_drivers: tuple[str, ...]) -> Iterator[int]:
-    """Hold the validation lock with the cache at ``base_bytes`` + one block row of ``path``; yields that size."""
+    """Hold the validation lock with the cache at ``base_bytes`` + a few blocks of ``path``; yields that size."""
     with _LOCK:
-        size = int(base_bytes) + block_row_bytes(path, allowed_drivers)
+        size = int(base_bytes) + VALIDATION_BLOCKS * block_bytes(path, allowed_drivers)
         set_cache_max(size)
         try:
             yield size

@@ -388,14 +388,15 @@ def dem_info(
 ) -> DemInfo:
     """Describe a DEM without reading it whole (validation of uploads); raises the same refusals as read_dem.
 
-    ``nodata_fraction`` is estimated on a decimated read of at most ``sample_cells`` cells.
+    ``nodata_fraction`` is estimated on a regular grid of at most ``sample_cells`` cells, read block by
+    block (:func:`blender_addon.terrain.raster_sample.sample_grid`): memory stays about one block of the
+    file plus the grid, whatever the raster's size.
     """
+    from blender_addon.terrain.raster_sample import sample_grid  # noqa: PLC0415
+
     src = open_metric_source(path, body=body, assume_metric=assume_metric)
     fds = src.src_dataset or src.dataset
-    fcols, frows = fds.RasterXSize, fds.RasterYSize
-    k = max(1.0, math.sqrt(fcols * frows / sample_cells))
-    bx, by = max(1, int(fcols / k)), max(1, int(frows / k))
-    raw = fds.GetRasterBand(1).ReadAsArray(0, 0, fcols, frows, buf_xsize=bx, buf_ysize=by)
+    raw = sample_grid(fds.GetRasterBand(1), max_cells=sample_cells)
     nod = fds.GetRasterBand(1).GetNoDataValue()
     a = raw.astype(np.float64)
     miss = np.isnan(a) if nod is None else (np.isnan(a) | (raw == nod))
