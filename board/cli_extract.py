@@ -1,12 +1,12 @@
 """`skyloc extract`: skyline of an acquisition or a panorama folder, as a skyline JSON file."""
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
 import click
 
+from board.atomic import write_json_atomic
 from board.errors import NoSkylineError
 
 log = logging.getLogger(__name__)
@@ -51,9 +51,7 @@ def extract_cmd(acq_dir: Path | None, pano_dir: Path | None, out: Path, debug: P
         save_extraction_picture(res, debug)
         click.echo(f"debug picture: {debug}")
     if report is not None:
-        tmp = report.with_name(report.name + ".part")
-        tmp.write_text(json.dumps(res.to_json_dict(), indent=1))
-        tmp.replace(report)
+        write_json_atomic(report, res.to_json_dict(), indent=1)
     if res.skyline is None:
         raise NoSkylineError(f"no skyline: {res.reason}")
     res.skyline.save(out)

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import write_text_atomic
 from board.errors import FormatError, InvalidInputError
 
 SKYLINE_VERSION = 1
@@ -88,10 +89,7 @@ class Skyline:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the JSON file (atomically: a temp file renamed over ``path``)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".part")
-        tmp.write_text(json.dumps(self.to_dict()))
-        os.replace(tmp, path)
+        write_text_atomic(path, json.dumps(self.to_dict()))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Skyline":

@@ -12,13 +12,13 @@ and reuses them for all its trials.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
 
+from board.atomic import write_json_atomic
 from board.descent.sequence import read_sequence
 from board.errors import FormatError, InvalidInputError, SkylocError
 
@@ -124,9 +124,7 @@ def run_descent_set(base_config, out: str | os.PathLike, *, trajectories: list[i
                            "modes": list(base_config.modes), "brdf": base_config.appearance.brdf,
                            "thermal": base_config.appearance.thermal, "width": base_config.width,
                            "height": base_config.height}}
-    tmp = out / (SET_MANIFEST + ".part")
-    tmp.write_text(json.dumps(manifest, indent=1))
-    os.replace(tmp, out / SET_MANIFEST)
+    write_json_atomic(out / SET_MANIFEST, manifest, indent=1)
     if failed:
         raise SkylocError(f"{len(failed)} of {total} trials failed ({', '.join(sorted(failed)[:5])}...): see "
                           f"{out / SET_MANIFEST}; run the same command again to retry them")

@@ -1,22 +1,18 @@
 """A job's published result: a zip of its output folder with a ``MANIFEST.sha256``, written atomically."""
 from __future__ import annotations
 
-import hashlib
 import os
 import zipfile
 from pathlib import Path
+
+from board.atomic import atomic_path, file_sha256
 
 RESULT_NAME = "result.zip"
 MANIFEST_NAME = "MANIFEST.sha256"
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed entry times: same database, same zip bytes
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+__all__ = ["MANIFEST_NAME", "RESULT_NAME", "file_sha256", "write_result_zip"]
 
 
 def write_result_zip(folder: Path, zip_path: Path, *, arcroot: str) -> tuple[str, int]:
@@ -28,8 +24,7 @@ def write_result_zip(folder: Path, zip_path: Path, *, arcroot: str) -> tuple[str
     """
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     manifest = []
-    tmp = zip_path.with_name(zip_path.name + ".tmp")
-    try:
+    with atomic_path(zip_path, suffix=".tmp") as tmp:  # runner.py sweeps stale "*.tmp" files
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as zf:
             for p in files:
                 arc = f"{arcroot}/{p.relative_to(folder).as_posix()}"
@@ -38,8 +33,4 @@ def write_result_zip(folder: Path, zip_path: Path, *, arcroot: str) -> tuple[str
             zf.writestr(zipfile.ZipInfo(MANIFEST_NAME, _ZIP_EPOCH), "\n".join(manifest) + "\n")
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.replace(tmp, zip_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return file_sha256(zip_path), zip_path.stat().st_size

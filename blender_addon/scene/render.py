@@ -21,6 +21,7 @@ from blender_addon.scene.camera import CAMERA_NAME, set_equirect, set_perspectiv
 from blender_addon.scene.quiet import native_stdout_captured
 from board.camera import CameraModel
 from board.errors import InvalidInputError
+from board.atomic import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -120,15 +121,14 @@ def _output(scene: bpy.types.Scene, path: Path, *, color_mode: str, color_depth:
 def _render_to(scene: bpy.types.Scene, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
-    scene.render.filepath = str(tmp)
-    with native_stdout_captured() as blender_out:       # Blender prints "Saved: '...'" on fd 1
-        bpy.ops.render.render(write_still=True, scene=scene.name)
-    if not tmp.is_file():
-        said = blender_out.text.strip() or "(nothing)"
-        raise RuntimeError(f"Blender did not write {tmp}; it printed: {said}. Check the log above "
-                           "and that the folder is writable")
-    os.replace(tmp, path)
+    with atomic_path(path, suffix=f".part{path.suffix}") as tmp:
+        scene.render.filepath = str(tmp)
+        with native_stdout_captured() as blender_out:       # Blender prints "Saved: '...'" on fd 1
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+        if not tmp.is_file():
+            said = blender_out.text.strip() or "(nothing)"
+            raise RuntimeError(f"Blender did not write {tmp}; it printed: {said}. Check the log above "
+                               "and that the folder is writable")
     return path
 
 

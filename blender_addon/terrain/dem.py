@@ -13,7 +13,6 @@ large DEMs are read by windows (``bounds=``) and never whole.
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import os
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from osgeo import gdal, osr
 
+from board.atomic import file_sha256 as _file_sha256
 from board.conventions import Body
 from board.errors import CrsError, DemReadError, InvalidInputError
 
@@ -160,11 +160,7 @@ def file_sha256(path: str | os.PathLike) -> str:
     st = p.stat()
     key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _SHA_CACHE:
-        h = hashlib.sha256()
-        with open(p, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-        _SHA_CACHE[key] = h.hexdigest()
+        _SHA_CACHE[key] = _file_sha256(p)
     return _SHA_CACHE[key]
 
 

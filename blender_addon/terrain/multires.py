@@ -22,13 +22,13 @@ import json
 import logging
 import math
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from osgeo import gdal
 
+from board.atomic import atomic_dir
 from board.conventions import Body
 from board.errors import FormatError, InvalidInputError
 
@@ -266,11 +266,7 @@ def write_multires(terrain: MultiResTerrain, out_dir: str | os.PathLike, *, repo
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()) and not (out / "terrain.json").is_file():
         raise InvalidInputError(f"{out} exists and is not a skyloc terrain folder: choose an empty or new --out")
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic_dir(out) as tmp:
         entries = []
         for k, lvl in enumerate(terrain.levels):
             name = f"level_{k}.tif"
@@ -302,12 +298,6 @@ def write_multires(terrain: MultiResTerrain, out_dir: str | os.PathLike, *, repo
             "meta": terrain.meta,
         }
         (tmp / "terrain.json").write_text(json.dumps(doc, indent=2))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     for e, lvl in zip(entries, terrain.levels):
         lvl.path = str(out / e["file"])
     return out

@@ -47,8 +47,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -58,6 +56,7 @@ import numpy as np
 
 from board.camera import CameraModel
 from board.errors import FormatError, InvalidInputError
+from board.atomic import atomic_dir
 
 log = logging.getLogger(__name__)
 
@@ -439,9 +438,7 @@ def write_sequence(folder: str | os.PathLike, meta: dict, visible_frames: Iterab
     for m in modes:
         DescentCamera.from_dict(doc["cameras"][m], where=f"cameras/{m}")
 
-    root.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".part", dir=root.parent))
-    try:
+    with atomic_dir(root) as tmp:
         _write_frames(tmp, modes, [given[m] for m in modes], times.size, doc["cameras"])
         np.savetxt(tmp / IMU_FILE, imu, delimiter=",", header=IMU_HEADER, comments="", fmt="%.9g")
         alt = altimeter.copy()
@@ -449,16 +446,5 @@ def write_sequence(folder: str | os.PathLike, meta: dict, visible_frames: Iterab
                    fmt=("%.9g", "%.6f", "%d"))
         np.savetxt(tmp / GROUNDTRUTH_FILE, groundtruth, delimiter=" ", fmt="%.9f")
         (tmp / SEQUENCE_MANIFEST).write_text(json.dumps(doc, indent=1))
-        if root.exists():
-            old = root.with_name(f".{root.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(root, old)
-            os.replace(tmp, root)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, root)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log.info("wrote descent sequence %s (%d frames, modes %s)", root, times.size, ",".join(modes))
     return root

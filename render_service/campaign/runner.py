@@ -331,9 +331,8 @@ def _poses(client, opt, profile: Profile, out: Path, site, ctx, say):
     if rejected:
         say(f"  {len(rejected)} candidate pose(s) rejected for a flat horizon (listed in poses.json and summary.json)")
     el = np.stack(truths).astype(np.float32)
-    tmp = out / ".truth.tmp.npz"
-    np.savez_compressed(tmp, elevation_deg=el)
-    os.replace(tmp, tfile)
+    with atomic_path(tfile, suffix=".part.npz") as tmp:
+        np.savez_compressed(tmp, elevation_deg=el)
     _write_json(pfile, {"n_poses": profile.n_poses, "accepted": accepted, "rejected": rejected,
                         "truth_n_azimuth": TRUTH_N_AZIMUTH})
     say(f"  {len(accepted)} hidden poses drawn off the grid (true horizon ray-marched at "

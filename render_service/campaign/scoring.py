@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import atomic_path
 from board.conventions import wrap_deg180
 
 #: A fix farther than this from the truth is wrong (metres), or with a heading error beyond (degrees).
@@ -162,6 +163,5 @@ def save_case_arrays(folder: Path, st: CaseOutcome) -> None:
         arrays["fix_pose"] = np.array([fix.x, fix.y, fix.heading_deg, fix.pitch_deg, fix.roll_deg, fix.offset_deg,
                                        fix_pictures(fix, "db_azimuth_start_deg") or 0.0])
     if arrays:
-        tmp = folder / ".arrays.tmp.npz"
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(folder / "arrays.npz")
+        with atomic_path(folder / "arrays.npz", suffix=".part.npz") as tmp:
+            np.savez_compressed(tmp, **arrays)

@@ -19,6 +19,7 @@ from render_service.engine import dask_client
 from .profiles import Profile
 from .report import compute_tables, report_html, tables_markdown
 from .tasks import RESULT_COLUMNS, run_trial
+from board.atomic import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -38,13 +39,11 @@ def _check_resume(out: Path, profile: Profile) -> None:
 
 
 def write_results_csv(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "w", newline="") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(RESULT_COLUMNS)
         for r in sorted(rows, key=lambda r: (r["trajectory"], r["trial"], r["mode"])):
             w.writerow([r[c] if isinstance(r[c], (int, str)) else f"{r[c]:.6g}" for c in RESULT_COLUMNS])
-    os.replace(tmp, path)
 
 
 def run_eval(profile: Profile, out: str | os.PathLike, *, scheduler: str | None = None, n_workers: int = 2,

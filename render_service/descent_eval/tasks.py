@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from board.descent.metrics import ate_m, distance_travelled, error_growth_percen
 from board.descent.runner import run_sequence, write_tum
 from board.descent.sequence import read_sequence
 from board.errors import FormatError, SkylocError
+from board.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -44,9 +44,7 @@ def filter_seed(base_seed: int, trajectory: int, trial: int) -> int:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_text_atomic(path, text)
 
 
 def ensure_sequence(out: Path, profile: dict, trajectory: int, trial: int):

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from osgeo import gdal
 
+from board.atomic import atomic_path
 from board.conventions import BODIES
 from board.errors import InvalidInputError
 
@@ -210,9 +211,8 @@ def write_geotiff(z: np.ndarray, out_path: str | os.PathLike, *, res_m: float, b
     out.parent.mkdir(parents=True, exist_ok=True)
     rows, cols = z.shape
     srs = body_equirectangular_srs(BODIES[body_name])
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
     drv = gdal.GetDriverByName("GTiff")
-    try:
+    with atomic_path(out, suffix=".part.tif") as tmp:
         ds = drv.Create(str(tmp), cols, rows, 1, gdal.GDT_Float32,
                         options=["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "ZLEVEL=6", "BLOCKXSIZE=256",
                                  "BLOCKYSIZE=256"])
@@ -225,10 +225,6 @@ def write_geotiff(z: np.ndarray, out_path: str | os.PathLike, *, res_m: float, b
         band.WriteArray(z)
         ds.FlushCache()
         ds = None
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return out
 
 
