@@ -21,10 +21,11 @@ import time
 
 import numpy as np
 
-from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator
+from blender_addon.core.acquire import AcquisitionJob, Pose
 from blender_addon.core.cameras import get_preset
 from blender_addon.core.degrade import PRESETS, degrade_frame, render_camera_for
 from blender_addon.core.plans import plan_frames
+from blender_addon.sim import Simulator
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import bpy  # noqa: TID251 (extension layer)
 
-from blender_addon.scene.panorama import PanoramaPose
+from blender_addon.core.acquire import Pose
 from blender_addon.terrain.model import MultiResTerrain
 from board.errors import InvalidInputError
 
@@ -58,10 +58,10 @@ def site_xy(s) -> tuple[float, float]:
     return float(s.site_x), float(s.site_y)
 
 
-def pose(s) -> PanoramaPose:
-    """Rover pose of the settings: site x, y (DEM CRS, m), mast height (m), heading/pitch/roll (deg)."""
-    return PanoramaPose(float(s.site_x), float(s.site_y), float(s.mast_height_m), float(s.heading_deg),
-                        float(s.pitch_deg), float(s.roll_deg))
+def pose(s) -> Pose:
+    """Rover pose of the settings: site x, y (DEM CRS, m), heading/pitch/roll (deg); the eye height is
+    ``s.mast_height_m``."""
+    return Pose(float(s.site_x), float(s.site_y), float(s.heading_deg), float(s.pitch_deg), float(s.roll_deg))
 
 
 def require_terrain() -> MultiResTerrain:

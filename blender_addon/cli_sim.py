@@ -60,15 +60,16 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         path, (x, y) = c.dem_path, c.xy_m
         terrain = build_multires(path, (x, y), grid_half_m=max(50.0, 4 * height_m), max_radius_m=radius_m, body=body)
         bar.update(1)
+        from blender_addon.core.acquire import Pose
         from blender_addon.scene import build_terrain, reset_scene
-        from blender_addon.scene.panorama import PanoramaPose, make_panorama
+        from blender_addon.scene.panorama import make_panorama
 
         reset_scene()
         build_terrain(terrain)
         bar.update(1)
-        pose = PanoramaPose(x, y, height_m, heading_deg, pitch_deg, roll_deg)
-        out = make_panorama(terrain, pose, out_dir, width=width, binary=binary, preset=preset, seed=seed,
-                            samples=samples, dem=str(dem), build=False)
+        pose = Pose(x, y, heading_deg, pitch_deg, roll_deg)
+        out = make_panorama(terrain, pose, out_dir, height_m=height_m, width=width, binary=binary, preset=preset,
+                            seed=seed, samples=samples, dem=str(dem), build=False)
         bar.update(1)
     click.echo(f"wrote {Path(out)}: {width} x {width // 2} {'binary' if binary else preset} panorama at "
                f"{c.describe()}, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")

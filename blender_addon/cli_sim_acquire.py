@@ -47,10 +47,11 @@ def acquire_cmd(dem: str, at: str, crs: str | None, heading_deg: float, pitch_de
                 camera: str, width: int | None, frames: int, arc_deg: float, tilt_deg: float, preset: str,
                 seed: int, samples: int, radius_m: float | None, body: str | None, out_dir: str) -> None:
     """Render a simulated NavCam acquisition (frames + acquisition.json with ground truth)."""
-    from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator, wrap_heading
+    from blender_addon.core.acquire import AcquisitionJob, Pose, wrap_heading
     from blender_addon.core.cameras import get_preset
     from blender_addon.core.degrade import check_look_body, get_degradation
     from blender_addon.core.plans import plan_frames
+    from blender_addon.sim import Simulator
 
     if samples < 1:
         raise InvalidInputError(f"--samples must be >= 1, got {samples}")
@@ -93,7 +94,7 @@ def dataset_cmd(scene_toml: str, out_dir: str, sets: tuple[str, ...], no_resume:
             click.echo(f"{s.name:6s} {s.count:4d} x {s.camera}/{s.plan} at {s.site}: {', '.join(s.degradations)}"
                        f"  {s.description}")
         return
-    from blender_addon.core.dataset import generate_dataset
+    from blender_addon.sim import generate_dataset
 
     with progress_bar("sim dataset", unit="acq") as progress:
         path = generate_dataset(scene_toml, out_dir, progress=progress, sets=list(sets) or None,

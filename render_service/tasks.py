@@ -17,6 +17,7 @@ import shutil
 import time
 from pathlib import Path
 
+from board.atomic import publish_dir
 from board.skydb import Tile
 from render_service.store import JobStore
 from render_service.workers import worker_name, worker_terrain
@@ -41,19 +42,14 @@ def build_terrain_task(rjob, out_dir: str) -> str:
     out = Path(out_dir)
     if (out / "terrain.json").is_file():
         return str(out)
-    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
+    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")     # runner.clean_job_temporaries sweeps ".tmp-"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
         load_terrain(rjob, terrain_dir=tmp)
-        os.rename(tmp, out)
-    except OSError:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if not (out / "terrain.json").is_file():
-            raise
-        # another worker published it first
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    publish_dir(tmp, out)           # another worker may have published it first
     return str(out)
 
 
@@ -89,7 +85,7 @@ def dataset_task(scene_toml: str, out_dir: str) -> str:
 
     Rendered into ``<out_dir>.partial`` (which the generator resumes after a crash), renamed when complete.
     """
-    from blender_addon.core.dataset import generate_dataset  # noqa: PLC0415
+    from blender_addon.sim import generate_dataset  # noqa: PLC0415
 
     out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")

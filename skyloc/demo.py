@@ -130,8 +130,9 @@ def _blender_leg(out, dem, db, x, y, heading, pitch, roll, height) -> dict:
     """Binary panorama rendered in Blender (Cycles) -> extracted skyline -> locate."""
     import bpy  # noqa: F401  (ImportError when Blender's module is not installed)
 
+    from blender_addon.core.acquire import Pose
     from blender_addon.scene import build_terrain, reset_scene
-    from blender_addon.scene.panorama import PanoramaPose, make_panorama
+    from blender_addon.scene.panorama import make_panorama
     from blender_addon.terrain.multires import build_multires
     from board.extraction import extract_from_panorama
     from board.locate import locate
@@ -141,7 +142,7 @@ def _blender_leg(out, dem, db, x, y, heading, pitch, roll, height) -> dict:
     reset_scene()
     build_terrain(terrain)
     pano_dir = out / "panorama_binary"
-    make_panorama(terrain, PanoramaPose(x, y, height, heading, pitch, roll), pano_dir, width=1440, binary=True,
+    make_panorama(terrain, Pose(x, y, heading, pitch, roll), pano_dir, height_m=height, width=1440, binary=True,
                   dem=str(dem), build=False)
     res = extract_from_panorama(pano_dir)
     if res.skyline is None:

@@ -1,8 +1,9 @@
-"""Simulated NavCam acquisitions: terrain + dressing + pan-tilt frames + degradations -> acquisition folder.
+"""Simulated NavCam acquisitions, the bpy-free part: what to simulate, and what gets written.
 
-This module holds no bpy code itself; it drives the Blender layer (imported when a
-:class:`Simulator` is created) and the numpy degradations.  One :class:`Simulator` keeps a
-site's terrain built in Blender and renders any number of acquisitions at poses near it:
+:class:`Pose` (the rover pose to simulate, the one pose type of the simulator), :class:`AcquisitionJob`
+(everything that defines one acquisition), the per-frame random streams, the pose checks, the
+simulation metadata and the acquisition folder written from rendered images.  The Blender side that
+renders the frames is :class:`blender_addon.sim.Simulator` (the add-on's bpy layer), which calls these:
 
     sim = Simulator("procedural:mars:7", site_xy=(0.0, 0.0), grid_half_m=300)
     sim.acquire(AcquisitionJob(Pose(10, 20, heading_deg=45), get_preset("exomars"),
@@ -20,10 +21,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import shutil
-import tempfile
-import time
-import uuid
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -31,10 +28,10 @@ from typing import Callable
 import numpy as np
 
 from blender_addon.core.cameras import CameraPreset
-from blender_addon.core.degrade import Degradation, decode_render, degrade_frame, render_camera_for
+from blender_addon.core.degrade import Degradation
 from blender_addon.core.plans import PanTiltPlan
 from board.acquisition import Acquisition, FrameInfo, GroundTruth, write_acquisition
-from board.camera import rotation_enu_from_frame
+from board.atomic import atomic_dir
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -47,7 +44,10 @@ Progress = Callable[[int, int, str], None]
 
 @dataclass(frozen=True)
 class Pose:
-    """Rover pose: position (metres, the DEM's metric CRS) and attitude (degrees)."""
+    """Rover pose in the world frame: position (metres, the DEM's metric CRS), heading (degrees clockwise from
+    grid north) and mast tilt (pitch, roll, degrees).  The eye height is not part of it: the camera's
+    ``mast_height_m`` gives it for acquisitions, ``height_m`` for panoramas
+    (:func:`blender_addon.scene.panorama.make_panorama`)."""
 
     x: float
     y: float
@@ -88,172 +88,64 @@ def load_terrain(dem_path: str | os.PathLike, site_xy: tuple[float, float], *, g
     return build_multires(dem_path, site_xy, grid_half_m=grid_half_m, max_radius_m=max_radius_m, body=body)
 
 
-def _replace_dir(tmp: Path, out: Path) -> None:
-    """Move the finished folder ``tmp`` to ``out`` (replacing an earlier result)."""
-    if out.exists():
-        old = out.with_name(f".{out.name}.old{os.getpid()}")
-        os.replace(out, old)
-        os.replace(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(tmp, out)
+def check_pose(pose: Pose, site_xy: tuple[float, float], grid_half_m: float) -> None:
+    """Refuse a pose outside the ``grid_half_m`` half-width around ``site_xy`` or tilted beyond 45 degrees."""
+    dx, dy = pose.x - site_xy[0], pose.y - site_xy[1]
+    if max(abs(dx), abs(dy)) > grid_half_m + 1e-6:
+        raise InvalidInputError(f"pose ({pose.x:.1f}, {pose.y:.1f}) is {max(abs(dx), abs(dy)):.0f} m from the "
+                                f"site, outside its {grid_half_m:.0f} m half-width: build the simulator with "
+                                "a larger grid_half_m")
+    if abs(pose.pitch_deg) > 45 or abs(pose.roll_deg) > 45:
+        raise InvalidInputError(f"pitch {pose.pitch_deg} / roll {pose.roll_deg} deg: a rover tilted beyond "
+                                "45 degrees is not simulated")
 
 
-class Simulator:
-    """A Blender session holding one site's terrain, rendering acquisitions near the site.
+def simulation_meta(job: AcquisitionJob, *, render_pinhole: dict, dressing: dict, sun_visible: bool,
+                    dem_sha256: str, render_seconds: float) -> dict:
+    """The ``meta`` of a simulated acquisition's manifest (what made it, to reproduce it)."""
+    deg = job.degradation
+    return {
+        "simulator": "skyloc blender_addon",
+        "camera_preset": job.camera.name,
+        "camera_note": job.camera.note,
+        "plan": {"n_frames": job.plan.n_frames, "arc_deg": job.plan.arc_deg, "hfov_deg": job.plan.hfov_deg,
+                 "overlap": job.plan.overlap},
+        "degradation": deg.to_dict(),
+        "seed": int(job.seed),
+        "samples": 1 if deg.binary else int(job.samples),
+        "denoise": bool(job.denoise),
+        "render_pinhole": render_pinhole,
+        "dressing": {**dressing, "sun_visible": bool(sun_visible)},
+        "dem_sha256": dem_sha256,
+        "render_seconds": round(float(render_seconds), 3),
+        **job.meta,
+    }
 
-    dem : a DEM path or ``procedural:PRESET:SEED[...]`` spec (resolved with
-        :func:`blender_addon.terrain.dem.resolve_dem`)
-    site_xy : centre of the terrain's finest level (metres, the DEM's metric CRS)
-    grid_half_m : half-width of the area (around the site) where poses may lie, metres
-    max_radius_m : terrain kept beyond that area, metres (default: to the DEM's edge)
-    """
 
-    def __init__(self, dem: str | os.PathLike, site_xy: tuple[float, float], *, grid_half_m: float = 200.0,
-                 max_radius_m: float | None = None, body: str | float | None = None,
-                 cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> None:
-        from blender_addon.terrain.dem import resolve_dem
+def acquisition_record(job: AcquisitionJob, meta: dict, *, eye_z_m: float, crs_wkt: str,
+                       dem_spec: str) -> Acquisition:
+    """The :class:`board.acquisition.Acquisition` of ``job``: camera, frames, measured attitude (truth +
+    the IMU error drawn from the job's seed) and the ground truth (``eye_z_m``: optical centre height)."""
+    p = job.pose
+    cam = job.camera.camera_model(**job.degradation.lens.distortion)
+    frames = [FrameInfo(f"frame_{i:03d}.png", pan, tilt) for i, (pan, tilt) in enumerate(job.plan.frames())]
+    rng = np.random.default_rng(np.random.SeedSequence([int(job.seed) & 0xFFFFFFFF, 0x1A0]))
+    att_err = rng.normal(0.0, job.imu_sigma_deg, 2) if job.imu_sigma_deg > 0 else np.zeros(2)
+    truth = GroundTruth(p.x, p.y, p.heading_deg, z=float(eye_z_m), pitch_deg=p.pitch_deg, roll_deg=p.roll_deg,
+                        crs=crs_wkt, dem=dem_spec)
+    return Acquisition(cam, job.camera.mast_height_m, frames,
+                       attitude=(p.pitch_deg + float(att_err[0]), p.roll_deg + float(att_err[1])),
+                       truth=truth, meta=meta)
 
-        self.dem_spec = str(dem)
-        self.dem_path = resolve_dem(dem, cache_dir=cache_dir)
-        self.site_xy = (float(site_xy[0]), float(site_xy[1]))
-        t0 = time.perf_counter()
-        self.terrain = load_terrain(self.dem_path, self.site_xy, grid_half_m=grid_half_m, max_radius_m=max_radius_m,
-                                    body=body)
-        self.grid_half_m = float(grid_half_m)
-        from blender_addon import scene as bscene
 
-        self._scene = bscene
-        self._token = uuid.uuid4().hex
-        self._build()
-        log.info("simulator: terrain of %s around (%.1f, %.1f) built in %.1f s", self.dem_spec, *self.site_xy,
-                 time.perf_counter() - t0)
-
-    @classmethod
-    def adopt(cls, terrain, *, dem_spec: str, dem_path: str | os.PathLike | None = None,
-              grid_half_m: float = 200.0) -> "Simulator":
-        """A Simulator over ``terrain`` already built in the current Blender scene (by
-        :func:`blender_addon.scene.build_terrain`), without resetting the session: safe inside an
-        operator, where a factory reset would free the operator's own context."""
-        from blender_addon import scene as bscene
-
-        sim = cls.__new__(cls)
-        sim.dem_spec = str(dem_spec)
-        sim.dem_path = Path(dem_path) if dem_path is not None else Path(str(dem_spec))
-        sim.site_xy = (float(terrain.site_xy[0]), float(terrain.site_xy[1]))
-        sim.terrain = terrain
-        sim.grid_half_m = float(grid_half_m)
-        sim._scene = bscene
-        sim._token = uuid.uuid4().hex
-        bscene.state.get_scene()["skyloc_simulator"] = sim._token
-        return sim
-
-    def _build(self) -> None:
-        """(Re)build the Blender scene: empty session, terrain meshes, and this simulator's token."""
-        self._scene.reset_scene()
-        self._scene.build_terrain(self.terrain)
-        self._scene.state.get_scene()["skyloc_simulator"] = self._token
-
-    def ensure_scene(self) -> None:
-        """Rebuild the terrain if another Simulator (or anything else) reset the Blender session since
-        (call it before rendering into the current scene directly, e.g. with ``make_panorama(build=False)``)."""
-        if self._scene.state.get_scene().get("skyloc_simulator") != self._token:
-            log.info("simulator: the Blender scene was replaced; rebuilding the terrain")
-            self._build()
-
-    def ground_z(self, x: float, y: float) -> float:
-        """Ground height (metres) at world (x, y)."""
-        from blender_addon.core.terrain_mesh import sample_height
-
-        return sample_height(self.terrain, x, y)
-
-    def _check_pose(self, pose: Pose) -> None:
-        dx, dy = pose.x - self.site_xy[0], pose.y - self.site_xy[1]
-        if max(abs(dx), abs(dy)) > self.grid_half_m + 1e-6:
-            raise InvalidInputError(f"pose ({pose.x:.1f}, {pose.y:.1f}) is {max(abs(dx), abs(dy)):.0f} m from the "
-                                    f"site, outside its {self.grid_half_m:.0f} m half-width: build the simulator with "
-                                    "a larger grid_half_m")
-        if abs(pose.pitch_deg) > 45 or abs(pose.roll_deg) > 45:
-            raise InvalidInputError(f"pitch {pose.pitch_deg} / roll {pose.roll_deg} deg: a rover tilted beyond "
-                                    "45 degrees is not simulated")
-
-    def render_frames(self, job: AcquisitionJob, *, progress: Progress | None = None,
-                      work_dir: str | os.PathLike | None = None) -> tuple[list[np.ndarray], dict]:
-        """Render and degrade every frame of ``job``; returns (RGB images, simulation metadata)."""
-        from blender_addon.scene import dressing
-        from blender_addon.scene.pantilt import point_camera
-
-        self._check_pose(job.pose)
-        self.ensure_scene()
-        deg = job.degradation
-        p = job.pose
-        cam = job.camera.camera_model(**deg.lens.distortion)
-        pinhole = render_camera_for(cam, dispersion=deg.lens.dispersion)
-        info = dressing.dress_scene(self.terrain, deg, center_xy=(p.x, p.y), heading_deg=p.heading_deg,
-                                    seed=job.seed, samples=job.samples, denoise=job.denoise)
-        z = self.ground_z(p.x, p.y) + job.camera.mast_height_m
-        sun_enu = np.asarray(info.sun_dir_enu)
-        sun_seen = (not deg.binary) and info.sun_elevation_deg > 0 and dressing.sun_visible(p.x, p.y, z, sun_enu)
-        images = []
-        t0 = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="skyloc-frames-", dir=work_dir) as tmp:
-            for i, (pan, tilt) in enumerate(job.plan.frames()):
-                point_camera(p.x, p.y, z, p.heading_deg, p.pitch_deg, p.roll_deg, pan, tilt)
-                path = self._scene.render_frame(Path(tmp) / f"render_{i:03d}.png", pinhole,
-                                                color_depth="8" if deg.binary else "16")
-                raw = self._scene.read_image(path)
-                lin = raw if deg.binary else decode_render(raw)
-                R = rotation_enu_from_frame(pan, tilt, heading_deg=p.heading_deg, pitch_deg=p.pitch_deg,
-                                            roll_deg=p.roll_deg)
-                rng = np.random.default_rng(frame_seed_sequence(job.seed, i))
-                images.append(degrade_frame(lin, pinhole, cam, deg, rng,
-                                            sun_dir_cam=(sun_enu @ R) if sun_seen else None))
-                if progress is not None:
-                    progress(i + 1, job.plan.n_frames, f"frame {i + 1}/{job.plan.n_frames}")
-        meta = {
-            "simulator": "skyloc blender_addon",
-            "camera_preset": job.camera.name,
-            "camera_note": job.camera.note,
-            "plan": {"n_frames": job.plan.n_frames, "arc_deg": job.plan.arc_deg, "hfov_deg": job.plan.hfov_deg,
-                     "overlap": job.plan.overlap},
-            "degradation": deg.to_dict(),
-            "seed": int(job.seed),
-            "samples": 1 if deg.binary else int(job.samples),
-            "denoise": bool(job.denoise),
-            "render_pinhole": pinhole.to_dict(),
-            "dressing": {**info.to_dict(), "sun_visible": bool(sun_seen)},
-            "dem_sha256": self.terrain.dem_sha256,
-            "render_seconds": round(time.perf_counter() - t0, 3),
-            **job.meta,
-        }
-        return images, meta
-
-    def acquire(self, job: AcquisitionJob, out_dir: str | os.PathLike, *,
-                progress: Progress | None = None) -> Path:
-        """Render ``job`` into the acquisition folder ``out_dir`` (replaced atomically); returns its path."""
-        out = Path(out_dir)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        images, meta = self.render_frames(job, progress=progress)
-        p = job.pose
-        cam = job.camera.camera_model(**job.degradation.lens.distortion)
-        frames = [FrameInfo(f"frame_{i:03d}.png", pan, tilt) for i, (pan, tilt) in enumerate(job.plan.frames())]
-        rng = np.random.default_rng(np.random.SeedSequence([int(job.seed) & 0xFFFFFFFF, 0x1A0]))
-        att_err = rng.normal(0.0, job.imu_sigma_deg, 2) if job.imu_sigma_deg > 0 else np.zeros(2)
-        truth = GroundTruth(p.x, p.y, p.heading_deg, z=self.ground_z(p.x, p.y) + job.camera.mast_height_m,
-                            pitch_deg=p.pitch_deg, roll_deg=p.roll_deg, crs=self.terrain.crs_wkt, dem=self.dem_spec)
-        acq = Acquisition(cam, job.camera.mast_height_m, frames,
-                          attitude=(p.pitch_deg + float(att_err[0]), p.roll_deg + float(att_err[1])),
-                          truth=truth, meta=meta)
-        tmp = out.with_name(f".{out.name}.partial{os.getpid()}")
-        shutil.rmtree(tmp, ignore_errors=True)
-        try:
-            # board.acquisition writes with OpenCV: BGR channel order
-            write_acquisition(tmp, acq, images=[np.ascontiguousarray(im[..., ::-1]) for im in images])
-            _replace_dir(tmp, out)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-        log.info("acquisition written to %s (%d frames)", out, len(frames))
-        return out
+def write_acquisition_folder(out_dir: str | os.PathLike, acq: Acquisition, images: list[np.ndarray]) -> Path:
+    """Write ``acq`` with its RGB ``images`` as the folder ``out_dir``, replacing an earlier one atomically."""
+    out = Path(out_dir)
+    with atomic_dir(out) as tmp:
+        # board.acquisition writes with OpenCV: BGR channel order
+        write_acquisition(tmp, acq, images=[np.ascontiguousarray(im[..., ::-1]) for im in images])
+    log.info("acquisition written to %s (%d frames)", out, len(acq.frames))
+    return out
 
 
 def job_dict(job: AcquisitionJob) -> dict:

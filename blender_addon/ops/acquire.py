@@ -25,17 +25,18 @@ class SKYLOC_OT_acquire(bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     def execute(self, context):
-        from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator
+        from blender_addon.core.acquire import AcquisitionJob
         from blender_addon.core.cameras import get_preset
         from blender_addon.core.degrade import check_look_body, get_degradation
         from blender_addon.core.plans import plan_frames
+        from blender_addon.sim import Simulator
 
         s = bridge.settings(context)
         try:
             with bridge.Progress(context, "acquire") as prog:
                 preset = get_preset(s.camera, width=int(s.frame_width) or None)
                 sim = _simulator(Simulator, s)
-                job = AcquisitionJob(Pose(s.site_x, s.site_y, s.heading_deg, s.pitch_deg, s.roll_deg), preset,
+                job = AcquisitionJob(bridge.pose(s), preset,
                                      plan_frames(int(s.frames), float(s.arc_deg), preset.hfov_deg),
                                      get_degradation(s.preset), seed=int(s.seed))
                 look = check_look_body(job.degradation, sim.terrain.body.name)

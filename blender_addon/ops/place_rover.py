@@ -21,7 +21,7 @@ class SKYLOC_OT_place_rover(bpy.types.Operator):
         try:
             terrain = bridge.require_terrain()
             p = bridge.pose(s)
-            z = sample_height(terrain, p.x, p.y) + p.height_m
+            z = sample_height(terrain, p.x, p.y) + float(s.mast_height_m)
             place_camera(p.x, p.y, z, p.heading_deg, p.pitch_deg, p.roll_deg, scene=context.scene)
         except Exception as exc:  # noqa: BLE001 (reported to the user)
             return bridge.fail(self, "Place rover", exc)

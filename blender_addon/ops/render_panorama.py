@@ -22,7 +22,7 @@ class SKYLOC_OT_render_panorama(bpy.types.Operator):
                 terrain = bridge.require_terrain()
                 binary = s.preset == "binary"
                 out = make_panorama(terrain, bridge.pose(s), bridge.out_dir(s) / "panorama",
-                                    width=int(s.pano_width) // 2 * 2, binary=binary,
+                                    height_m=float(s.mast_height_m), width=int(s.pano_width) // 2 * 2, binary=binary,
                                     preset=None if binary else s.preset, seed=int(s.seed), dem=s.dem, build=False)
                 prog.update(1.0, "panorama written")
         except Exception as exc:  # noqa: BLE001 (reported to the user)

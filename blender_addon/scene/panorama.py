@@ -10,13 +10,11 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
-import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from blender_addon.core.acquire import Pose
 from blender_addon.core.terrain_mesh import sample_height
 from blender_addon.scene import render as R
 from blender_addon.scene import state
@@ -24,21 +22,10 @@ from blender_addon.scene.camera import place_camera
 from blender_addon.scene.terrain import build_terrain
 from blender_addon.terrain.model import MultiResTerrain
 from board.acquisition import GroundTruth, PanoramaGeometry, write_panorama
+from board.atomic import atomic_dir
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class PanoramaPose:
-    """Rover pose: x, y metres (terrain CRS), mast height above the ground (m), attitude (degrees)."""
-
-    x: float
-    y: float
-    height_m: float
-    heading_deg: float = 0.0
-    pitch_deg: float = 0.0
-    roll_deg: float = 0.0
 
 
 def panorama_geometry(width: int, *, binary: bool) -> PanoramaGeometry:
@@ -50,28 +37,28 @@ def panorama_geometry(width: int, *, binary: bool) -> PanoramaGeometry:
                                         kind="binary" if binary else "intensity")
 
 
-def render_binary_panorama(pose: PanoramaPose, *, width: int, path: str | os.PathLike,
+def render_binary_panorama(pose: Pose, *, height_m: float, width: int, path: str | os.PathLike,
                            terrain: MultiResTerrain | None = None) -> np.ndarray:
     """Render a binary (terrain 255, sky 0) panorama of the current scene; returns the uint8 image.
 
-    The scene must already hold the terrain (:func:`build_terrain`); ``terrain`` gives the ground
-    height under the rover (default: the camera z is ``pose.height_m`` above the scene origin).
+    The scene must already hold the terrain (:func:`build_terrain`); the eye is ``height_m`` above the
+    ground under the rover, which ``terrain`` gives (default: above the scene origin).
     """
     geom = panorama_geometry(width, binary=True)
-    z = _eye_z(pose, terrain)
+    z = _eye_z(pose, height_m, terrain)
     place_camera(pose.x, pose.y, z, pose.heading_deg, pose.pitch_deg, pose.roll_deg)
     R.configure_binary(samples=1)
     p = R.render_equirect(path, width=geom.width, height=geom.height)
     return (R.read_image(p) >= 0.5).astype(np.uint8) * 255
 
 
-def _eye_z(pose: PanoramaPose, terrain: MultiResTerrain | None) -> float:
+def _eye_z(pose: Pose, height_m: float, terrain: MultiResTerrain | None) -> float:
     if terrain is None:
-        return state.get_offset().z_m + pose.height_m
-    return sample_height(terrain, pose.x, pose.y) + pose.height_m
+        return state.get_offset().z_m + height_m
+    return sample_height(terrain, pose.x, pose.y) + height_m
 
 
-def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset, *, width: int, seed: int,
+def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset, *, width: int, seed: int,
                    samples: int, path: Path) -> tuple[np.ndarray, dict]:
     """Intensity panorama with H5b's dressing (regolith, rocks, sky, sun) and sensor noise.
 
@@ -83,7 +70,7 @@ def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset, *, widt
     deg = preset if isinstance(preset, degrade.Degradation) else degrade.get_degradation(preset)
     info = dressing.dress_scene(terrain, deg, center_xy=(pose.x, pose.y), heading_deg=pose.heading_deg,
                                 seed=seed, samples=samples)
-    place_camera(pose.x, pose.y, _eye_z(pose, terrain), pose.heading_deg, pose.pitch_deg, pose.roll_deg)
+    place_camera(pose.x, pose.y, _eye_z(pose, height_m, terrain), pose.heading_deg, pose.pitch_deg, pose.roll_deg)
     p = R.render_equirect(path, width=width, height=width // 2, color_mode="RGB", color_depth="16")
     lin = degrade.decode_render(R.read_image(p))
     lin = degrade.apply_exposure(lin, deg.sensor.exposure_ev) if deg.sensor.exposure_ev else lin
@@ -100,10 +87,13 @@ def _dressed_image(terrain: MultiResTerrain, pose: PanoramaPose, preset, *, widt
     return img, meta
 
 
-def make_panorama(terrain: MultiResTerrain, pose: PanoramaPose, out_dir: str | os.PathLike, *, width: int = 2048,
-                  binary: bool = True, preset=None, seed: int = 0, samples: int = 16,
+def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLike, *, height_m: float,
+                  width: int = 2048, binary: bool = True, preset=None, seed: int = 0, samples: int = 16,
                   dem: str = "", build: bool = True) -> Path:
     """Build the scene (unless ``build`` is False), render and write a panorama folder atomically.
+
+    pose : the rover pose (:class:`blender_addon.core.acquire.Pose`); height_m : the eye (mast) height above
+        the ground under it, metres
 
     binary : the report's noise level 1 (terrain white, sky black); otherwise ``preset``
         (clean | realistic | distorted, H5b's dressing, or a ``Degradation`` such as a preset with
@@ -116,27 +106,20 @@ def make_panorama(terrain: MultiResTerrain, pose: PanoramaPose, out_dir: str | o
     if build:
         state.reset_scene()
         build_terrain(terrain)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent if out.parent.exists() else None))
-    try:
+    with atomic_dir(out) as tmp:
         geom = panorama_geometry(width, binary=binary)
         if binary:
-            img = render_binary_panorama(pose, width=width, path=tmp / "render.png", terrain=terrain)
+            img = render_binary_panorama(pose, height_m=height_m, width=width, path=tmp / "render.png",
+                                         terrain=terrain)
             meta = {"preset": "binary", "renderer": "blender-cycles", "samples": 1}
         else:
-            img, meta = _dressed_image(terrain, pose, preset, width=width, seed=seed, samples=samples,
+            img, meta = _dressed_image(terrain, pose, height_m, preset, width=width, seed=seed, samples=samples,
                                        path=tmp / "render.png")
         (tmp / "render.png").unlink(missing_ok=True)
-        z = sample_height(terrain, pose.x, pose.y) + pose.height_m
+        z = sample_height(terrain, pose.x, pose.y) + height_m
         truth = GroundTruth(x=pose.x, y=pose.y, heading_deg=pose.heading_deg, z=z, pitch_deg=pose.pitch_deg,
                             roll_deg=pose.roll_deg, crs=terrain.crs_wkt, dem=dem)
         meta.update({"seed": int(seed), "body_radius_m": float(terrain.body.radius_m), "curvature": True})
-        write_panorama(tmp, img, geom, mast_height_m=pose.height_m, truth=truth, meta=meta)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        write_panorama(tmp, img, geom, mast_height_m=height_m, truth=truth, meta=meta)
     log.info("panorama written to %s", out)
     return out

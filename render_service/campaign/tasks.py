@@ -7,7 +7,7 @@
   frames at the hidden pose, panorama building, skyline detection, matching -- and writes the
   case's folder and its ``row.json`` last (atomically), so a case with a row is finished.
 
-A worker keeps one Blender :class:`~blender_addon.core.acquire.Simulator` per site (the terrain is
+A worker keeps one Blender :class:`~blender_addon.sim.Simulator` per site (the terrain is
 built in Blender once per worker process).  Workers must run one thread each (bpy is not
 thread-safe).  Coordinates are metres in the DEM's metric CRS, angles degrees.
 """
@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from board.atomic import atomic_dir, publish_dir
 from board.errors import SkylocError
 
 log = logging.getLogger(__name__)
@@ -49,16 +50,6 @@ class CampaignContext:
     large_db_path: str = ""
 
 
-def _publish_dir(tmp: Path, out: Path) -> None:
-    """Move the finished folder ``tmp`` to ``out`` (another worker may have published it first)."""
-    try:
-        os.rename(tmp, out)
-    except OSError:
-        if not out.exists():
-            raise
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def terrain_task(dem_path: str, center_xy: tuple[float, float], size_m: float, step_m: float,
                  n_azimuth: int, camera_height_m: float, out_dir: str) -> str:
     """Build (once) the ray-marcher's terrain for a grid of ``size_m`` around ``center_xy``."""
@@ -73,7 +64,7 @@ def terrain_task(dem_path: str, center_xy: tuple[float, float], size_m: float, s
     tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
     load_terrain(job, terrain_dir=tmp)
-    _publish_dir(tmp, out)
+    publish_dir(tmp, out)
     return str(out)
 
 
@@ -108,7 +99,7 @@ _SIMULATORS: dict[tuple, object] = {}
 
 
 def _simulator(ctx: CampaignContext):
-    from blender_addon.core.acquire import Simulator  # noqa: PLC0415
+    from blender_addon.sim import Simulator  # noqa: PLC0415
 
     key = (ctx.dem_path, ctx.site_xy, ctx.sim_half_m)
     sim = _SIMULATORS.get(key)
@@ -133,17 +124,18 @@ def _degradation(preset: str, cand: dict):
 def render_panorama_case(ctx: CampaignContext, case: dict, cand: dict, pitch: float, roll: float,
                          out: Path) -> float:
     """Render the case's equirectangular panorama into ``out``; returns the render time (s)."""
-    from blender_addon.scene.panorama import PanoramaPose, make_panorama  # noqa: PLC0415
+    from blender_addon.core.acquire import Pose  # noqa: PLC0415
+    from blender_addon.scene.panorama import make_panorama  # noqa: PLC0415
 
     sim = _simulator(ctx)
     sim.ensure_scene()
     p = ctx.profile
     deg = _degradation(case["preset"], cand)
     t0 = time.perf_counter()
-    make_panorama(sim.terrain, PanoramaPose(cand["x"], cand["y"], ctx.camera_height_m, cand["heading_deg"], pitch,
-                                            roll),
-                  out, width=int(p["pano_width"]), binary=deg.binary, preset=None if deg.binary else deg,
-                  seed=int(cand["texture_seed"]), samples=int(p["samples"]), dem=ctx.dem_spec, build=False)
+    make_panorama(sim.terrain, Pose(cand["x"], cand["y"], cand["heading_deg"], pitch, roll), out,
+                  height_m=ctx.camera_height_m, width=int(p["pano_width"]), binary=deg.binary,
+                  preset=None if deg.binary else deg, seed=int(cand["texture_seed"]), samples=int(p["samples"]),
+                  dem=ctx.dem_spec, build=False)
     return time.perf_counter() - t0
 
 
@@ -316,13 +308,11 @@ def _window_db(ctx: CampaignContext, folder: Path, prior_xy, prof):
     job = prepare_job(ctx.dem_path, center_xy=(float(prior_xy[0]), float(prior_xy[1])), size_m=prof.window_m,
                       step_m=prof.window_step_m, spec=spec, tile_size=64, body=ctx.body, what="the window")
     terrain = worker_terrain(ctx.terrain_dir)
-    tmp = folder / f".window.{os.getpid()}.zarr"
-    shutil.rmtree(tmp, ignore_errors=True)
-    w = SkyDBWriter.create(tmp, job.meta)
-    for tile in w.pending_tiles():
-        render_and_write_tile(tmp, terrain, tile, job.spec, writer=w)
-    w.finalize()
-    os.replace(tmp, path)
+    with atomic_dir(path, suffix=".zarr") as tmp:
+        w = SkyDBWriter.create(tmp, job.meta, overwrite=True)   # the new, empty folder
+        for tile in w.pending_tiles():
+            render_and_write_tile(tmp, terrain, tile, job.spec, writer=w)
+        w.finalize()
     return SkyDB.open(path)
 
 

@@ -17,11 +17,12 @@ gdal = pytest.importorskip("osgeo.gdal")
 
 from click.testing import CliRunner  # noqa: E402
 
-from blender_addon.core.acquire import AcquisitionJob, Pose, Simulator  # noqa: E402
+from blender_addon.core.acquire import AcquisitionJob, Pose  # noqa: E402
 from blender_addon.core.cameras import get_preset  # noqa: E402
 from blender_addon.core.degrade import PRESETS, Degradation  # noqa: E402
 from blender_addon.core.plans import plan_frames  # noqa: E402
 from blender_addon.core.rocks import bilinear_height  # noqa: E402
+from blender_addon.sim import Simulator  # noqa: E402
 from board.acquisition import load_acquisition, load_schema  # noqa: E402
 from board.camera import pixel_to_az_el  # noqa: E402
 from board.conventions import curvature_drop_m  # noqa: E402

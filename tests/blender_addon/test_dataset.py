@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from blender_addon.core.dataset import generate_dataset  # noqa: E402
 from blender_addon.core.scene_spec import load_scene, set_jobs  # noqa: E402
+from blender_addon.sim import generate_dataset  # noqa: E402
 from board.acquisition import load_acquisition  # noqa: E402
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]

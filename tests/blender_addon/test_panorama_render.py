@@ -104,7 +104,8 @@ def test_curved_plain_horizon_dip_far_from_the_scene_origin():
 
 
 def test_dem_panorama_matches_the_ray_marcher(real_dem, tmp_path):
-    from blender_addon.scene.panorama import PanoramaPose, make_panorama
+    from blender_addon.core.acquire import Pose
+    from blender_addon.scene.panorama import make_panorama
     from blender_addon.terrain.multires import build_multires
     from board.acquisition import load_panorama
     from render_service.renderers.base import RenderSpec
@@ -113,9 +114,9 @@ def test_dem_panorama_matches_the_ray_marcher(real_dem, tmp_path):
     dem = real_dem("mars_gale_hirise_1m_mmgis_missionDEM.tif")
     site = (8142580.0, -276620.0)
     terrain = build_multires(dem, site, grid_half_m=20.0)
-    pose = PanoramaPose(site[0] + 3.0, site[1] - 4.0, 2.0, heading_deg=20.0)
+    pose = Pose(site[0] + 3.0, site[1] - 4.0, heading_deg=20.0)
     w = 512
-    out = make_panorama(terrain, pose, tmp_path / "pano", width=w, binary=True)
+    out = make_panorama(terrain, pose, tmp_path / "pano", height_m=2.0, width=w, binary=True)
     pano = load_panorama(out)
     g = pano.geometry
     got = _boundary_from_image(np.asarray(pano.image, dtype=float) / 255.0)

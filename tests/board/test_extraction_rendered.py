@@ -79,10 +79,11 @@ def test_skyline_of_a_ray_marched_horizon(terrain, fine_horizon, heading):
 @pytest.mark.blender
 def test_blender_binary_panorama_matches_ray_marched_horizon(terrain, tmp_path):
     pytest.importorskip("bpy")
-    from blender_addon.scene.panorama import PanoramaPose, make_panorama
+    from blender_addon.core.acquire import Pose
+    from blender_addon.scene.panorama import make_panorama
 
     heading = 30.0
-    out = make_panorama(terrain, PanoramaPose(*POSE, EYE_M, heading_deg=heading), tmp_path / "pano", width=2048,
+    out = make_panorama(terrain, Pose(*POSE, heading_deg=heading), tmp_path / "pano", height_m=EYE_M, width=2048,
                         binary=True)
     res = extract_from_panorama(out)
     assert res.status == STATUS_OK

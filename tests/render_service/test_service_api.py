@@ -260,7 +260,7 @@ def test_no_cors_by_default(app_client):
 
 
 def test_dataset_job_accepted_for_a_known_scene(app_client):
-    if importlib.util.find_spec("blender_addon.core.dataset") is None:
+    if importlib.util.find_spec("blender_addon.sim") is None:
         r = app_client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"})
         assert r.status_code == 501 and r.json()["code"] == "not_available"
         return

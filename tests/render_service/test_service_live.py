@@ -295,7 +295,7 @@ def test_status_page_in_headless_chromium(server_a, clean_run, tmp_path):
 
 
 def test_dataset_job_renders_a_test_set(server_a, tmp_path):
-    if importlib.util.find_spec("blender_addon.core.dataset") is None or importlib.util.find_spec("bpy") is None:
+    if importlib.util.find_spec("blender_addon.sim") is None or importlib.util.find_spec("bpy") is None:
         pytest.skip("the simulator's dataset generator (and bpy) are not installed")
     r = server_a.client.post("/v1/jobs", json={"kind": "dataset", "scene": "test_tiny"})
     assert r.status_code == 202, r.text

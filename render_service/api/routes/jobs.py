@@ -93,8 +93,8 @@ def submit_job(request: Request, response: Response,
         tiles = {t.key: t.nrows * t.ncols for t in plan.tiles}
     else:
         assert isinstance(job, DatasetJobIn)
-        if importlib.util.find_spec("blender_addon.core.dataset") is None:
-            raise _not_available("dataset generation (blender_addon.core.dataset)")
+        if importlib.util.find_spec("blender_addon.sim") is None:
+            raise _not_available("dataset generation (blender_addon.sim)")
         scene = Path(settings.scenes_dir) / f"{job.scene}.toml"
         if not scene.is_file():
             names = sorted(p.stem for p in Path(settings.scenes_dir).glob("*.toml"))
