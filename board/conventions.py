@@ -123,13 +123,18 @@ def azimuth_grid_deg(n: int = DEFAULT_N_AZIMUTH, start_deg: float = DEFAULT_AZIM
     return start_deg + np.arange(n) * (360.0 / n)
 
 
+def curvature_coefficient(radius_m: float, refraction_k: float = 0.0) -> float:
+    """``c = (1 - k) / 2R`` (1/m): the apparent drop of a point at horizontal distance d is ``c d**2``."""
+    return (1.0 - float(refraction_k)) / (2.0 * float(radius_m))
+
+
 def curvature_drop_m(distance_m, radius_m: float, refraction_k: float = 0.0):
     """Apparent drop (metres) of a point at horizontal distance ``distance_m`` on a sphere.
 
     ``d**2 / (2 R) * (1 - k)``; ``k`` is the refraction coefficient (0 on airless bodies,
     about 0.13 on Earth).
     """
-    return np.asarray(distance_m, dtype=float) ** 2 / (2.0 * radius_m) * (1.0 - refraction_k)
+    return np.asarray(distance_m, dtype=float) ** 2 * curvature_coefficient(radius_m, refraction_k)
 
 
 def horizon_dip_deg(height_m: float, radius_m: float) -> float:

@@ -29,6 +29,7 @@ from typing import Iterator
 
 import numpy as np
 
+from board.conventions import BODIES
 from board.errors import FormatError, InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -131,7 +132,7 @@ class SkyDBMeta:
     n_azimuth: int = 360
     azimuth_start_deg: float = 0.0
     body: str = "custom"
-    body_radius_m: float = 3_389_500.0
+    body_radius_m: float = BODIES["mars"].radius_m
     refraction_k: float = 0.0
     renderer: str = "raymarch"
     renderer_version: str = "0"

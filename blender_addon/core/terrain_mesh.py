@@ -29,7 +29,7 @@ from typing import Iterator
 import numpy as np
 
 from blender_addon.terrain.model import MultiResTerrain, TerrainLevel
-from board.conventions import curvature_drop_m
+from board.conventions import curvature_coefficient, curvature_drop_m
 from board.errors import InvalidInputError, NoDataError
 
 log = logging.getLogger(__name__)
@@ -125,7 +125,7 @@ def local_up_enu(x: float, y: float, offset: SceneOffset, radius_m: float | None
     """
     if not radius_m:
         return np.array([0.0, 0.0, 1.0])
-    c = (1.0 - refraction_k) / (2.0 * radius_m)
+    c = curvature_coefficient(radius_m, refraction_k)
     v = np.array([2 * c * (x - offset.x_m), 2 * c * (y - offset.y_m), 1.0])
     return v / np.linalg.norm(v)
 

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from board.camera import CameraModel
+from board.conventions import BODIES
 from board.descent.quaternion import quat_from_rot, quat_to_xyzw
 
 #: Camera axes in the body frame for a camera looking down (columns: image right, image down, optical axis).
@@ -290,7 +291,7 @@ def make_sequence(seed: int, *, n_frames: int = 40, frame_rate_hz: float = 1.0,
         frames["visible"].append(vis)
         frames["thermal"].append(th)
     meta = {"format": "skyloc-descent-sequence", "version": 1,
-            "body": {"name": "europa", "radius_m": 1_560_800.0, "gravity_mps2": EUROPA_G},
+            "body": {"name": "europa", "radius_m": BODIES["europa"].radius_m, "gravity_mps2": EUROPA_G},
             "frame_rate_hz": frame_rate_hz,
             "imu": {"file": "imu.csv", "rate_hz": imu_spec.rate_hz, "gyro_noise_rad_s_sqrt_hz": imu_spec.gyro_noise,
                     "accel_noise_m_s2_sqrt_hz": imu_spec.accel_noise, "gyro_bias_rw": imu_spec.gyro_bias_rw,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from board.conventions import azimuth_grid_deg, enu_from_az_el_deg, rotation_enu_from_camera
+from board.conventions import BODIES, azimuth_grid_deg, curvature_drop_m, enu_from_az_el_deg, rotation_enu_from_camera
 from board.pose.sphere import rel_az_el_from_body, resample_periodic
 
 
@@ -25,7 +25,7 @@ class MountainField:
     py: np.ndarray
     height: np.ndarray
     width: np.ndarray
-    radius_m: float = 3_389_500.0
+    radius_m: float = BODIES["mars"].radius_m
     base_deg: float = -0.5
 
     @classmethod
@@ -35,7 +35,7 @@ class MountainField:
         rng = np.random.default_rng(seed)
         d = np.exp(rng.uniform(np.log(r_min), np.log(r_max), n_hills))
         a = rng.uniform(0, 2 * np.pi, n_hills)
-        h = d * np.tan(np.radians(rng.uniform(1.0, 12.0, n_hills))) + d ** 2 / (2 * 3_389_500.0)
+        h = d * np.tan(np.radians(rng.uniform(1.0, 12.0, n_hills))) + curvature_drop_m(d, BODIES["mars"].radius_m)
         w = d * rng.uniform(0.03, 0.22, n_hills)  # W << d: the hills never reach the observer
         return cls(center[0] + d * np.sin(a), center[1] + d * np.cos(a), h, w)
 
@@ -49,7 +49,7 @@ class MountainField:
         da = np.arctan2(dx, dy) - az
         along = d * np.cos(da)
         across = d * np.sin(da)
-        z = self.height * np.exp(-0.5 * (across / self.width) ** 2) - along ** 2 / (2 * self.radius_m)
+        z = self.height * np.exp(-0.5 * (across / self.width) ** 2) - curvature_drop_m(along, self.radius_m)
         el = np.degrees(np.arctan2(z, np.maximum(along, 1.0)))
         el = np.where(along > 1.0, el, -90.0)
         return np.maximum(el.max(axis=2), self.base_deg)

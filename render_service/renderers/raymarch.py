@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blender_addon.terrain.model import MultiResTerrain
+from board.conventions import curvature_coefficient
 from board.errors import InvalidInputError
 from board.skydb import GridSpec, Tile
 from render_service.renderers import _kernels
@@ -206,7 +207,7 @@ def render_positions(terrain: MultiResTerrain, x_m, y_m, spec: RenderSpec, *,
                                 "near_field_cells >= 0")
     pk = _packed(terrain, options)
     sin_az, cos_az = _direction_tables(spec)
-    c_per_m = (1.0 - spec.refraction_k) / (2.0 * spec.body_radius_m)
+    c_per_m = curvature_coefficient(spec.body_radius_m, spec.refraction_k)
     min_step = options.min_step_cells * float(pk.cell[0])
     max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
     return _kernels.render_positions(px, py, float(spec.camera_height_m), sin_az, cos_az, *pk.kernel_args(),

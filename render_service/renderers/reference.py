@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from blender_addon.terrain.model import DemRaster
+from board.conventions import curvature_coefficient
 from board.errors import InvalidInputError
 from render_service.renderers.base import RenderSpec
 
@@ -116,7 +117,7 @@ def brute_force_horizon_with_distance(dem: DemRaster, x: float, y: float, spec: 
     max_dist = math.inf if spec.max_distance_m is None else float(spec.max_distance_m)
     el, dist = _brute(np.ascontiguousarray(dem.array, dtype=np.float64), float(gt[0]), float(gt[3]), cell,
                       float(x), float(y), float(spec.camera_height_m), np.sin(rad), np.cos(rad),
-                      (1.0 - spec.refraction_k) / (2.0 * spec.body_radius_m), step_cells * cell, max_dist,
+                      curvature_coefficient(spec.body_radius_m, spec.refraction_k), step_cells * cell, max_dist,
                       float(step_growth), max_step_cells * cell)
     return az, el, dist
 

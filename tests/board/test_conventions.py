@@ -70,3 +70,25 @@ def test_parse_xy_names_the_option():
         parse_xy("1.5", "--center")
     with pytest.raises(InvalidInputError, match="finite"):
         parse_xy("nan,2", "--at")
+
+
+def test_body_radii_and_the_curvature_coefficient_are_defined_once():
+    """No body radius literal and no hand-written ``(1 - k) / 2R`` outside board/conventions.py (issue 13)."""
+    import re
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    radii = [f"{b.radius_m:_.1f}".rstrip("0").rstrip(".") for b in C.BODIES.values()]
+    literal = re.compile(r"(?<![\w.])(%s)(?:\.0)?(?![\w])" % "|".join(
+        re.escape(r) + "|" + re.escape(r.replace("_", "")) for r in radii))
+    coeff = re.compile(r"\(1(?:\.0)? - [\w.]*refraction_k\) / \(2(?:\.0)? \*|\*\* ?2 / \(2(?:\.0)? \* [\w.]*radius")
+    bad = []
+    for pkg in ("board", "blender_addon", "render_service", "skyloc", "benchmarks"):
+        for f in sorted((repo / pkg).rglob("*.py")):
+            if f.name == "conventions.py" and f.parent.name == "board":
+                continue
+            for i, line in enumerate(f.read_text().splitlines(), 1):
+                code = line.split("#", 1)[0]
+                if literal.search(code) or coeff.search(code):
+                    bad.append(f"{f.relative_to(repo)}:{i}: {line.strip()}")
+    assert not bad, "\n".join(bad)
