@@ -27,12 +27,18 @@ BODY_HELP = ("Body (earth, mars, moon, europa) or radius in metres; default: fro
 CRS_HELP = ("CRS of the coordinates given here (e.g. EPSG:4326 for lon,lat, EPSG:32610, a WKT or PROJ string); "
             "default: the DEM's own CRS (lon,lat for a DEM in degrees).")
 ASSUME_METRIC_HELP = "The DEM has no CRS but its coordinates are metres (give --body too)."
+AT_HELP = "Position X,Y in the DEM's CRS (lon,lat for a DEM in degrees) unless --crs names another."
 
 
-def dem_option(*, required: bool = True, default: str | None = None) -> Callable:
-    """``--dem``: a DEM file or procedural spec."""
+def dem_option(*, required: bool = True, default: str | None = None, note: str = "") -> Callable:
+    """``--dem``: a DEM file or procedural spec (``note``: what this command adds, appended to the shared help)."""
     return click.option("--dem", "dem", required=required and default is None, default=default,
-                        show_default=default is not None, help=DEM_HELP)
+                        show_default=default is not None, help=f"{DEM_HELP} {note}".strip())
+
+
+def at_option() -> Callable:
+    """``--at``: one position on the command line, in the DEM's CRS unless ``--crs``."""
+    return click.option("--at", "at", required=True, help=AT_HELP)
 
 
 def body_option() -> Callable:

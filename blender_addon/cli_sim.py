@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from blender_addon.cli_options import body_option, crs_option, dem_option, site
+from blender_addon.cli_options import at_option, body_option, crs_option, dem_option, site
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -22,7 +22,7 @@ def sim_group() -> None:
 
 @sim_group.command("panorama")
 @dem_option()
-@click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
+@at_option()
 @crs_option()
 @click.option("--height", "height_m", type=float, default=2.0, show_default=True,
               help="Camera (mast) height above the ground, metres.")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from blender_addon.cli_options import body_option, crs_option, dem_option, site
+from blender_addon.cli_options import at_option, body_option, crs_option, dem_option, site
 from blender_addon.core.cameras import PRESETS as CAMERAS
 from blender_addon.core.degrade import PRESETS as LOOKS
 from board.errors import InvalidInputError
@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 @click.command("acquire")
 @dem_option()
-@click.option("--at", "at", required=True, help="Rover position X,Y in the DEM's CRS (lon,lat for a DEM in degrees).")
+@at_option()
 @crs_option()
 @click.option("--heading", "heading_deg", type=float, required=True, help="Heading, degrees clockwise from grid north.")
 @click.option("--pitch", "pitch_deg", type=float, default=0.0, show_default=True, help="Pitch, degrees (nose up +).")

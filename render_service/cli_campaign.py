@@ -6,14 +6,14 @@ from pathlib import Path
 
 import click
 
+from blender_addon.cli_options import body_option, dem_option
 from render_service.cli_tls import check_tls_options, tls_client_options
 
 log = logging.getLogger(__name__)
 
 
 @click.command("campaign")
-@click.option("--dem", default="procedural:mars:7", show_default=True,
-              help="A DEM file skyloc reads, or procedural:PRESET:SEED (mars, moon, europa; sized by the profile).")
+@dem_option(default="procedural:mars:7", note="A procedural terrain is sized by the profile.")
 @click.option("--profile", "profile_name", default="ci", show_default=True,
               type=click.Choice(["ci", "report", "full"]),
               help="ci: a small site in minutes; report: the report's protocol on 1 x 1 km at 5 m; full: "
@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 @tls_client_options
 @click.option("--workers", default=2, show_default=True, type=click.IntRange(1, 256),
               help="LocalCluster worker processes (one thread each: Blender is not thread-safe).")
-@click.option("--body", default=None, help="Body of a DEM whose CRS does not say (earth, mars, moon, europa).")
+@body_option()
 @click.option("--min-relief-deg", default=None, type=click.FloatRange(0.0, 90.0),
               help="Use only poses whose true horizon rises this much (deg) above its lowest part [profile: 1].")
 @click.option("--poses", default=None, type=click.IntRange(1, 10000),

@@ -12,7 +12,7 @@ import math
 
 import click
 
-from blender_addon.cli_options import dem_options, site
+from blender_addon.cli_options import at_option, dem_options, site
 from blender_addon.terrain.crs import crs_name
 from board.errors import InvalidInputError
 
@@ -121,7 +121,7 @@ def info_cmd(store: str, as_json: bool) -> None:
 
 @db_group.command("horizon")
 @_with(_common_render)
-@click.option("--at", "at", required=True, help="Position X,Y (DEM's CRS, lon,lat in degrees, unless --crs).")
+@at_option()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def horizon_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_distance, at, as_json) -> None:
     """Horizon elevation by azimuth at one position, straight from the DEM (ray-marcher)."""
