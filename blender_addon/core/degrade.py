@@ -301,6 +301,29 @@ def look_for_body(body: str) -> str | None:
     return None
 
 
+def look_on_body(name: str, body: str) -> Degradation:
+    """The look ``name`` as it is on ``body`` (a body name): what a campaign on that body renders.
+
+    "realistic" is the Mars look; on another body it is that body's realistic look
+    (:func:`look_for_body`: sky, sunlight, regolith).  "distorted" is the realistic look seen through
+    the distorted lens: on another body, that body's look with the same lens.  Every other look
+    (binary, clean, a body's own look) is returned as it is.  Raises InvalidInputError for an unknown
+    name (as :func:`get_degradation`).
+    """
+    deg = get_degradation(name)
+    b = str(body).strip().lower()
+    key = str(name).strip().lower()
+    if key not in ("realistic", "distorted") or b == deg.body:
+        return deg
+    own = look_for_body(b)
+    if own is None:  # no look for this body: keep the Mars look (check_look_body warns)
+        return deg
+    base = PRESETS[own]
+    if key == "realistic":
+        return base
+    return replace(base, name=f"distorted-{b}", lens=deg.lens)
+
+
 def check_look_body(deg: Degradation, body: str) -> str | None:
     """A warning (logged, and returned) when ``deg`` is made for another body than ``body``; None when it fits."""
     if deg.body is None or deg.body == str(body).strip().lower():

@@ -32,8 +32,19 @@ COLUMNS = (
     "pose", "kind", "fix_pitch_deg", "fix_roll_deg", "prior_offset_m", "heading_prior_deg", "render_s", "case_s",
     "true_relief_deg", "off_grid_steps", "kept_deg", "kept_fraction", "extract_median_abs_err_deg",
     "extract_p90_abs_err_deg", "extract_frac_gt1deg", "ellipse95_major_m", "wrong", "wrong_ok", "right_flagged",
-    "picture_error",
+    "picture_error", "look",
 )
+def _look_name(preset: str, body: str) -> str:
+    """The name of the look rendered for ``preset`` on ``body`` (e.g. realistic -> realistic-moon)."""
+    from blender_addon.core.degrade import look_on_body  # noqa: PLC0415
+    from board.errors import InvalidInputError  # noqa: PLC0415
+
+    try:
+        return look_on_body(preset, body).name
+    except InvalidInputError:  # not a look name: keep the preset's name
+        return str(preset)
+
+
 #: Columns that measure time (they differ between two runs of the same campaign).
 TIME_COLUMNS = ("extract_s", "locate_s", "render_s", "case_s")
 
@@ -113,7 +124,7 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
         "mode": c["mode"], "pitch_deg": _r(st.pitch_deg), "roll_deg": _r(st.roll_deg), "true_x": _r(cd["x"], 3),
         "true_y": _r(cd["y"], 3), "true_heading_deg": _r(cd["heading_deg"]), "pose": c["pose"], "kind": c["kind"],
         "extract_status": st.extract_status, "extract_s": _r(st.extract_s), "render_s": _r(st.render_s, 2),
-        "reason": st.reason, "picture_error": st.picture_error,
+        "reason": st.reason, "picture_error": st.picture_error, "look": _look_name(c["preset"], ctx.body),
         "prior_offset_m": _r(st.prior[2] if st.prior else c.get("prior_offset_m", 0.0), 3),
         "heading_prior_deg": _r(st.heading_prior_deg),
         "true_relief_deg": "" if truth_el is None else _r(horizon_relief_deg(truth_el), 3),

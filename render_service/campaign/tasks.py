@@ -110,11 +110,12 @@ def _simulator(ctx: CampaignContext):
     return sim
 
 
-def _degradation(preset: str, cand: dict):
-    """The preset's look with this pose's sun (absolute azimuth, degrees)."""
-    from blender_addon.core.degrade import get_degradation  # noqa: PLC0415
+def _degradation(preset: str, cand: dict, body: str):
+    """The preset's look on ``body`` (realistic and distorted take the body's sky, sunlight and regolith:
+    :func:`blender_addon.core.degrade.look_on_body`) with this pose's sun (absolute azimuth, degrees)."""
+    from blender_addon.core.degrade import look_on_body  # noqa: PLC0415
 
-    deg = get_degradation(preset)
+    deg = look_on_body(preset, body)
     if deg.binary:
         return deg
     return replace(deg, sun=replace(deg.sun, azimuth_deg=float(cand["sun_azimuth_deg"]),
@@ -130,7 +131,7 @@ def render_panorama_case(ctx: CampaignContext, case: dict, cand: dict, pitch: fl
     sim = _simulator(ctx)
     sim.ensure_scene()
     p = ctx.profile
-    deg = _degradation(case["preset"], cand)
+    deg = _degradation(case["preset"], cand, ctx.body)
     t0 = time.perf_counter()
     make_panorama(sim.terrain, Pose(cand["x"], cand["y"], cand["heading_deg"], pitch, roll), out,
                   height_m=ctx.camera_height_m, width=int(p["pano_width"]), binary=deg.binary,
@@ -151,7 +152,7 @@ def render_acquisition_case(ctx: CampaignContext, case: dict, cand: dict, pitch:
     cam = get_preset(p["camera"], width=int(p["camera_width"]), mast_height_m=ctx.camera_height_m)
     plan = plan_frames(int(p["frames"]), 360.0, cam.hfov_deg)
     job = AcquisitionJob(Pose(cand["x"], cand["y"], cand["heading_deg"], pitch, roll), cam, plan,
-                         _degradation(case["preset"], cand), seed=int(cand["texture_seed"]),
+                         _degradation(case["preset"], cand, ctx.body), seed=int(cand["texture_seed"]),
                          samples=int(p["samples"]))
     t0 = time.perf_counter()
     sim.acquire(job, out)

@@ -212,6 +212,29 @@ def test_every_body_has_its_look_and_a_foreign_look_is_named(caplog):
     assert sun["moon"] == sun["earth"]
 
 
+def test_realistic_and_distorted_take_the_body_of_the_terrain():
+    """A campaign's realistic/distorted looks on a body are that body's look (the Mars dust is not put on the
+    Moon); distorted keeps its lens; body-free looks and a body's own look are unchanged."""
+    from blender_addon.core.degrade import PRESETS, check_look_body, look_on_body
+    from board.conventions import BODIES
+
+    for body in BODIES:
+        real, dist = look_on_body("realistic", body), look_on_body("Distorted", body)
+        assert real.body == body and dist.body == body
+        assert check_look_body(real, body) is None and check_look_body(dist, body) is None
+        assert dist.lens == PRESETS["distorted"].lens and dist.sky == real.sky and dist.sensor == real.sensor
+        assert dist.rocks == real.rocks and dist.regolith_albedo == real.regolith_albedo
+        for other in ("binary", "clean", "realistic-earth"):
+            assert look_on_body(other, body) is PRESETS[other]
+    assert look_on_body("realistic", "mars") is PRESETS["realistic"]
+    assert look_on_body("distorted", "mars") is PRESETS["distorted"]
+    assert look_on_body("realistic", "moon").name == "realistic-moon"
+    assert look_on_body("distorted", "moon").name == "distorted-moon"
+    assert look_on_body("realistic", "moon").sky.dust_tau == 0.0  # no dust on an airless body
+    with pytest.raises(InvalidInputError, match="unknown degradation preset"):
+        look_on_body("foggy", "mars")
+
+
 def test_a_look_names_a_known_body():
     from blender_addon.core.degrade import Degradation
 

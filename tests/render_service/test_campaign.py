@@ -149,6 +149,7 @@ class _Ctx:
     dem_spec = "procedural:mars:1"
     site_xy = (0.0, 0.0)
     profile = get_profile("ci").to_dict()
+    body = "mars"
 
 
 def _row(fix, table="4"):
@@ -174,6 +175,13 @@ def test_rows_score_the_fix_against_the_truth_and_flag_wrong_ok():
     assert agg["cases"] == 4 and agg["wrong"] == 2 and agg["wrong_ok"] == 1
     assert agg["wrong_flagged_share"] == 0.5 and agg["status"] == {"ambiguous": 1, "no_fix": 1, "ok": 2}
     assert agg["error_m"]["n"] == 3 and agg["error_m"]["max"] == pytest.approx(30.0)
+
+
+def test_rows_name_the_look_rendered_on_the_terrains_body():
+    assert scoring._look_name("realistic", "moon") == "realistic-moon"
+    assert scoring._look_name("distorted", "earth") == "distorted-earth"
+    assert scoring._look_name("realistic", "mars") == "realistic"
+    assert scoring._look_name("clean", "moon") == "clean"
 
 
 # --------------------------------------------------------------------------------------------
@@ -238,6 +246,8 @@ def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
             assert float(r["true_x"]) == pytest.approx(truth["x"], abs=1e-3)
             assert float(r["true_y"]) == pytest.approx(truth["y"], abs=1e-3)
             assert float(r["true_heading_deg"]) == pytest.approx(truth["heading_deg"], abs=1e-3)
+            if r["kind"] == "panorama" and r["preset"] != "binary":  # the look rendered is the one reported
+                assert json.loads(manifest.read_text())["meta"]["degradation"]["name"] == r["look"]
             assert float(r["pitch_deg"]) == pytest.approx(truth.get("pitch_deg", 0.0), abs=1e-6)
             assert float(r["off_grid_steps"]) >= planning.OFF_GRID_MARGIN - 1e-3
         if r["error_m"] != "":
