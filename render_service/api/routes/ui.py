@@ -39,29 +39,55 @@ def _row(j) -> str:
             f"<td>{j.tiles_done} / {j.tiles_total}</td><td>{rate}</td><td>{eta}</td><td>{e(j.error or '')}</td></tr>")
 
 
+#: conservative width of one character of the tick labels, in font sizes (digits, minus and degree sign are
+#: about 0.55-0.6 em in common sans-serif fonts)
+_CHAR_EM = 0.65
+_TICK_FONT = 11
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
+    """Round tick values (1, 2, 2.5 or 5 x 10^k apart) covering [lo, hi], about ``n`` of them."""
+    raw = (hi - lo) / max(n - 1, 1)
+    mag = 10.0 ** math.floor(math.log10(raw)) if raw > 0 else 1.0
+    step = next(f * mag for f in (1.0, 2.0, 2.5, 5.0, 10.0) if f * mag >= raw)
+    return np.arange(math.ceil(lo / step) * step, hi + step * 1e-9, step)
+
+
+def _label_width(text: str, font_size: float = _TICK_FONT) -> float:
+    return _CHAR_EM * font_size * len(text)
+
+
 def skyline_svg(az_deg: np.ndarray, el_deg: np.ndarray, *, title: str, width: int = 720, height: int = 240) -> str:
-    """Inline SVG of a skyline: elevation (degrees) against azimuth (degrees from grid north)."""
+    """Inline SVG of a skyline: elevation (degrees) against azimuth (degrees from grid north).
+
+    The left margin is as wide as the longest elevation label (plus a gap), so no tick label is clipped by the
+    SVG's edge whatever the elevations; ticks are round values.
+    """
     ok = np.isfinite(el_deg)
     if not ok.any():
         return '<p class="muted">the skyline has no rendered samples</p>'
     lo, hi = float(np.nanmin(el_deg)), float(np.nanmax(el_deg))
     lo, hi = math.floor(min(lo, 0.0)) - 1, math.ceil(max(hi, 0.0)) + 1
-    m = 40
+    yvals = _nice_ticks(lo, hi)
+    ylabels = [f"{v:g}\u00b0" for v in yvals]
+    m = 40                                                    # right, top and bottom margins
+    ml = max(m, math.ceil(max(_label_width(t) for t in ylabels)) + 14)   # left: labels + 6 px gap + 8 px edge
 
     def px(a):
-        return m + (a / 360.0) * (width - 2 * m)
+        return ml + (a / 360.0) * (width - ml - m)
 
     def py(e):
         return height - m - (e - lo) / (hi - lo) * (height - 2 * m)
 
+    f = _TICK_FONT
     pts = " ".join(f"{px(a):.1f},{py(e):.1f}" for a, e, k in zip(az_deg, el_deg, ok) if k)
-    ticks = "".join(f'<text x="{px(a):.0f}" y="{height - m + 16}" font-size="11" text-anchor="middle">{a}&#176;</text>'
+    ticks = "".join(f'<text x="{px(a):.0f}" y="{height - m + 16}" font-size="{f}" text-anchor="middle">{a}&#176;</text>'
                     for a in range(0, 361, 45))
-    yt = "".join(f'<text x="{m - 6}" y="{py(v) + 4:.0f}" font-size="11" text-anchor="end">{v:g}&#176;</text>'
-                 for v in np.linspace(lo, hi, 5))
+    yt = "".join(f'<text x="{ml - 6}" y="{py(v) + 4:.0f}" font-size="{f}" text-anchor="end">'
+                 f'{html.escape(t).replace(chr(176), "&#176;")}</text>' for v, t in zip(yvals, ylabels))
     return (f'<svg id="skyline" xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-            f'viewBox="0 0 {width} {height}"><title>{html.escape(title)}</title>'
-            f'<line x1="{m}" y1="{py(0):.1f}" x2="{width - m}" y2="{py(0):.1f}" stroke="#bbb" stroke-dasharray="4 3"/>'
+            f'viewBox="0 0 {width} {height}" font-family="sans-serif"><title>{html.escape(title)}</title>'
+            f'<line x1="{ml}" y1="{py(0):.1f}" x2="{width - m}" y2="{py(0):.1f}" stroke="#bbb" stroke-dasharray="4 3"/>'
             f'<polyline fill="none" stroke="#3a7bd5" stroke-width="1.5" points="{pts}"/>{ticks}{yt}'
             f'<text x="{width / 2}" y="16" font-size="12" text-anchor="middle">{html.escape(title)}</text></svg>')
 
