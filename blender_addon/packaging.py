@@ -24,6 +24,8 @@ import tomllib
 import zipfile
 from pathlib import Path
 
+from board.atomic import atomic_path
+
 log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
@@ -91,8 +93,7 @@ def build_extension(out_dir: str | Path, *, wheel: bool = False) -> Path:
         if any(not w.name.endswith("-none-any.whl") for w in wheels):  # platform wheels: say for which platform
             manifest = manifest.replace('\nlicense =', f'\nplatforms = ["{blender_platform()}"]\nlicense =', 1)
     path = out / f"{manifest_id()}-{version}.zip"
-    tmp_zip = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp_zip, "w", zipfile.ZIP_DEFLATED) as z:
+    with atomic_path(path, suffix=".tmp.zip") as tmp_zip, zipfile.ZipFile(tmp_zip, "w", zipfile.ZIP_DEFLATED) as z:
         for name in EXTENSION_FILES:
             if name == "blender_manifest.toml":
                 z.writestr(name, manifest)
@@ -103,7 +104,6 @@ def build_extension(out_dir: str | Path, *, wheel: bool = False) -> Path:
                 z.write(f, f"{d}/{f.name}")
         for w in wheels:
             z.write(w, f"wheels/{w.name}")
-    tmp_zip.replace(path)
     return path
 
 
