@@ -182,6 +182,11 @@ def locate_cmd(ctx: click.Context, db_path: Path, sky_path: Path | None, acq_dir
                    f"95 % ellipse {fix.ellipse95_m[0]:.2f} x {fix.ellipse95_m[1]:.2f} m)")
         click.echo(f"heading {fix.heading_deg:.2f} deg (sigma {fix.sigma_heading_deg:.2f}, clockwise from grid north)"
                    f"  {_tilt_text(fix, q)}  |  {fix.elapsed_s:.2f} s")
+        for what, sectors in (("above the DEM's skyline (near rocks or objects not in the DEM)", fix.above_dem),
+                              ("below the DEM's skyline (the extraction missed it)", fix.below_dem)):
+            if sectors:
+                click.echo(f"masked {sum(x['n'] for x in sectors)} query column(s) {what}: " + ", ".join(
+                    f"{x['from_deg']:g}-{x['to_deg']:g} deg ({x['excess_deg']:+.1f} deg)" for x in sectors))
         if fix.at_grid_edge:
             click.echo("warning: the fix lies within one grid step of the database grid's edge: the rover may be "
                        "beyond it (render a database around it)")

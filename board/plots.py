@@ -119,6 +119,14 @@ def draw_fix(fix, *, truth: tuple[float, float] | None = None, half_window: int 
                                fix.roll_deg)
         ax_sky.plot(np.mod(az_q, 360.0), el_q - fix.offset_deg, "r.", ms=3,
                     label="query (rotated by the fitted pose, offset removed)")
+        for sectors, color, label in ((getattr(fix, "above_dem", []), "tab:orange", "masked: above the DEM (rock?)"),
+                                      (getattr(fix, "below_dem", []), "tab:blue", "masked: below the DEM")):
+            for i, sec in enumerate(sectors):  # query-frame azimuths: shifted by the heading (level approximation)
+                a0 = (sec["from_deg"] + fix.heading_deg - 0.5) % 360.0
+                a1 = (sec["to_deg"] + fix.heading_deg + 0.5) % 360.0
+                spans = [(a0, a1)] if a0 <= a1 else [(a0, 360.0), (0.0, a1)]
+                for j, (u, v) in enumerate(spans):
+                    ax_sky.axvspan(u, v, color=color, alpha=0.25, lw=0, label=label if i == 0 and j == 0 else None)
         ax_sky.set_xlim(0, 360)
         ax_sky.set_xticks(np.arange(0, 361, 45))
         ax_sky.set_xlabel("azimuth (deg, clockwise from grid north)")

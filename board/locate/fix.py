@@ -38,7 +38,11 @@ class Fix:
     azimuth of the major axis).  pitch_deg and roll_deg are the mast's tilt from the local vertical as
     fitted (the query skyline is taken as observed, not levelled).  grid_row/grid_col are the fractional
     grid indices of the fix; at_grid_edge is True when it lies within one grid step of the database
-    grid's edge (the rover may be beyond it).
+    grid's edge (the rover may be beyond it).  n_outliers : query columns masked because the fix could
+    not explain them (:mod:`board.locate.robust`); above_dem / below_dem : those columns as sectors
+    (``{"from_deg", "to_deg", "n", "excess_deg"}``, azimuths in the query's frame, degrees) where the
+    query's boundary stands above the DEM's skyline (a near rock or an object not in the DEM: a real
+    boundary, not the DEM's skyline) or lies below it (the detector missed the skyline there).
     """
 
     x: float
@@ -70,6 +74,8 @@ class Fix:
     grid_col: float = float("nan")
     at_grid_edge: bool = False
     n_outliers: int = 0
+    above_dem: list = field(default_factory=list)
+    below_dem: list = field(default_factory=list)
     pictures: FixPictures | None = field(default=None, repr=False)
 
     def to_json_dict(self) -> dict:
@@ -94,4 +100,5 @@ class Fix:
             "coverage_deg": f(self.coverage_deg), "positions_scored": self.n_scored,
             "positions_pruned": self.n_pruned, "grid_row": f(self.grid_row), "grid_col": f(self.grid_col),
             "at_grid_edge": bool(self.at_grid_edge), "outliers_masked": int(self.n_outliers),
+            "above_dem_skyline": list(self.above_dem), "below_dem_skyline": list(self.below_dem),
         }

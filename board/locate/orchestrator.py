@@ -30,7 +30,7 @@ from board.locate.refinement import (
     reweighted,
     walk_refine,
 )
-from board.locate.robust import cleaned_query
+from board.locate.robust import cleaned_query, sectors_at_fix
 from board.locate.window import local_db
 from board.match.fft_score import QueryModel, heading_deg, prepare_query, score_block
 from board.match.search import Region, ScoreMap, search
@@ -219,6 +219,12 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
             log.info("%d query column(s) inconsistent with the fix: located again without them", cleaned[1])
             fix = locate(db, cleaned[0], replace(opts, robust=False), progress=progress)
             fix.n_outliers = cleaned[1]
+            pics = fix.pictures
+            if pics is not None and pics.db_skyline_deg is not None:
+                fix.above_dem, fix.below_dem = sectors_at_fix(
+                    skyline, skyline.seen & ~cleaned[0].seen, db_skyline_deg=pics.db_skyline_deg,
+                    db_azimuth_start_deg=pics.db_azimuth_start_deg, heading_deg=fix.heading_deg,
+                    pitch_deg=fix.pitch_deg, roll_deg=fix.roll_deg, offset_deg=fix.offset_deg)
             fix.elapsed_s = time.perf_counter() - t0
             return fix
     return make_fix(db, skyline, q, smap, ref, local, opts=opts, t0=t0, region=region)

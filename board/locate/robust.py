@@ -41,6 +41,66 @@ def outlier_mask(ref: Refined) -> np.ndarray:
     return (np.abs(r - float(np.median(r))) > OUTLIER_MIN_DEG) & (np.abs(rw - med) > OUTLIER_Z * sigma)
 
 
+def flagged_sectors(skyline: Skyline, idx: np.ndarray, residual_deg: np.ndarray) -> list[dict]:
+    """Masked query columns grouped into sectors of consecutive azimuths (circularly).
+
+    idx : (m,) indices of the masked samples in ``skyline``; residual_deg : (m,) query minus database
+    skyline at the fix (degrees; positive: the query's boundary stands above the DEM's skyline).
+    Returns ``[{"from_deg", "to_deg", "n", "excess_deg"}]`` in the query's azimuth frame (the mast's,
+    degrees clockwise from its heading, as ``skyline.azimuths_deg()``), ``excess_deg`` the mean
+    residual of the sector, sorted by ``from_deg``.
+    """
+    idx = np.asarray(idx, dtype=np.int64)
+    if idx.size == 0:
+        return []
+    order = np.argsort(idx)
+    idx, res = idx[order], np.asarray(residual_deg, float)[order]
+    breaks = np.flatnonzero(np.diff(idx) > 1) + 1
+    groups = [(g, r) for g, r in zip(np.split(idx, breaks), np.split(res, breaks))]
+    if len(groups) > 1 and groups[0][0][0] == 0 and groups[-1][0][-1] == skyline.n - 1:  # across 0 deg
+        first, last = groups.pop(0), groups.pop()
+        groups.append((np.concatenate([last[0], first[0]]), np.concatenate([last[1], first[1]])))
+    az = skyline.azimuths_deg()
+    out = [{"from_deg": round(float(az[g[0]]) % 360.0, 3), "to_deg": round(float(az[g[-1]]) % 360.0, 3),
+            "n": int(g.size), "excess_deg": round(float(np.mean(r)), 3)} for g, r in groups]
+    return sorted(out, key=lambda d: d["from_deg"])
+
+
+def sectors_at_fix(skyline: Skyline, masked: np.ndarray, *, db_skyline_deg: np.ndarray, db_azimuth_start_deg: float,
+                   heading_deg: float, pitch_deg: float, roll_deg: float, offset_deg: float
+                   ) -> tuple[list[dict], list[dict]]:
+    """(above, below): the masked columns of ``skyline`` that the final fix still cannot explain, as sectors.
+
+    masked : (n,) bool over ``skyline``'s samples (the columns masked before the second location).
+    The original query is rotated by the fix's pose (heading, pitch, roll, degrees) and compared with
+    ``db_skyline_deg`` (the database's skyline interpolated at the fix, ENU azimuths from
+    ``db_azimuth_start_deg`` over 360 degrees) less the fitted ``offset_deg``.  Columns more than
+    :data:`OUTLIER_MIN_DEG` above it are ``above`` (a near rock, rover hardware, an object not in the
+    DEM: a real boundary, but not the DEM's skyline), more than that below it are ``below`` (the
+    detector missed the skyline: a far ridge lost in haze, a wrong edge).  Masked columns the final fix
+    explains (they only disagreed with the first, pulled fix) are in neither, nor is a lone column less
+    than twice that off (the database's interpolation error at a steep edge of the skyline).  Sectors as
+    :func:`flagged_sectors`.
+    """
+    from board.pose.sphere import enu_az_el  # noqa: PLC0415
+
+    idx = np.flatnonzero(np.asarray(masked, bool) & np.isfinite(skyline.elevation_deg))
+    db = np.asarray(db_skyline_deg, float)
+    if idx.size == 0 or db.size == 0:
+        return [], []
+    az, el = enu_az_el(skyline.azimuths_deg()[idx], skyline.elevation_deg[idx], heading_deg, pitch_deg, roll_deg)
+    step = 360.0 / db.size
+    grid = db_azimuth_start_deg + np.arange(db.size + 1) * step
+    ref_el = np.interp(np.mod(az - db_azimuth_start_deg, 360.0) + db_azimuth_start_deg, grid, np.append(db, db[0]))
+    r = el - offset_deg - ref_el
+    up, down = r > OUTLIER_MIN_DEG, r < -OUTLIER_MIN_DEG
+
+    def real(sectors: list[dict]) -> list[dict]:  # one column a little off is a steep edge's interpolation error
+        return [x for x in sectors if x["n"] >= 2 or abs(x["excess_deg"]) >= 2.0 * OUTLIER_MIN_DEG]
+
+    return real(flagged_sectors(skyline, idx[up], r[up])), real(flagged_sectors(skyline, idx[down], r[down]))
+
+
 def cleaned_query(skyline: Skyline, ref: Refined) -> tuple[Skyline, int] | None:
     """The query with the outlier columns of ``ref`` masked, and how many; None when nothing is masked."""
     bad = outlier_mask(ref)

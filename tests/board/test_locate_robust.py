@@ -12,7 +12,7 @@ import pytest
 
 from board.conventions import wrap_deg180
 from board.locate import LocateOptions, locate
-from board.locate.robust import OUTLIER_MIN_DEG, cleaned_query, outlier_mask
+from board.locate.robust import OUTLIER_MIN_DEG, cleaned_query, flagged_sectors, outlier_mask, sectors_at_fix
 from board.pose.refine import Refined
 from board.skyline import Skyline
 
@@ -64,6 +64,77 @@ def test_cleaned_query_masks_exactly_the_outlier_azimuths():
     assert cleaned_query(sky, _refined(np.random.default_rng(2).normal(0, 0.05, 200))) is None
     # too many "outliers": the fix itself is doubtful, nothing is masked
     assert cleaned_query(sky, _refined(np.where(np.arange(200) % 2, 5.0, 0.0))) is None
+
+
+def test_masked_columns_are_reported_as_sectors_above_or_below_the_dem_skyline():
+    """A level query at heading 30 deg against a known database skyline: boulders (also one across north)
+    are above it, a ridge lost in haze below it, and a masked column the fix explains is in neither."""
+    db = 3.0 + 2.0 * np.sin(np.radians(np.arange(360) * 3.0))  # ENU azimuths 0..359
+    heading, offset = 30.0, 0.4
+    theta = np.arange(360.0)
+    el = np.interp((theta + heading) % 360.0, np.arange(361), np.append(db, db[0])) + offset
+    el[100:160] = np.nan                   # not seen
+    rock, north, haze, fine, edge = [40, 41, 42, 43], [358, 359, 0, 1], [220, 221], [250], [270]
+    el[rock] += [3.0, 4.0, 4.0, 3.0]
+    el[north] += 5.0
+    el[haze] -= 2.0
+    el[edge] += 1.5                        # a lone column 1.5 deg off: interpolation error, not a rock
+    masked = np.zeros(360, bool)
+    masked[rock + north + haze + fine + edge] = True
+    above, below = sectors_at_fix(Skyline(el), masked, db_skyline_deg=db, db_azimuth_start_deg=0.0,
+                                  heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, offset_deg=offset)
+    assert [(a["from_deg"], a["to_deg"], a["n"]) for a in above] == [(40.0, 43.0, 4), (358.0, 1.0, 4)]
+    assert above[0]["excess_deg"] == pytest.approx(3.5, abs=0.02) and above[1]["excess_deg"] == pytest.approx(5, abs=0.02)
+    assert [(b["from_deg"], b["to_deg"], b["n"]) for b in below] == [(220.0, 221.0, 2)]
+    assert below[0]["excess_deg"] == pytest.approx(-2.0, abs=0.02)
+    none = sectors_at_fix(Skyline(el), np.zeros(360, bool), db_skyline_deg=db, db_azimuth_start_deg=0.0,
+                          heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, offset_deg=offset)
+    assert none == ([], [])
+    assert flagged_sectors(Skyline(el), np.array([], int), np.array([])) == []
+
+
+@pytest.mark.slow
+def test_near_rocks_above_the_horizon_are_flagged_and_do_not_move_the_fix(raymarch_world):
+    """A query whose boundary follows two boulders standing above the horizon (+2.5 to +6 deg over 6 and 9
+    degrees): the fix is where the clean query's is, and the boulders' azimuths are reported above the DEM."""
+    w = raymarch_world
+    rng = np.random.default_rng(77)
+    x, y = w.random_xy(rng)
+    h = rng.uniform(0, 360)
+    sky = w.query(x, y, heading=h, noise=0.05, rng=rng)
+    el = sky.elevation_deg.copy()
+    seen = np.flatnonzero(np.isfinite(el))
+    rocks = [(int(seen[40]), 6, 4.0), (int(seen[200]), 9, 6.0)]
+    for start, width, height in rocks:
+        j = (start + np.arange(width)) % el.size
+        el[j] += height * np.sin(np.linspace(0.3, np.pi - 0.3, width))  # a rounded outline
+    fix = locate(w.db, Skyline(el, sky.azimuth_start_deg, sky.azimuth_step_deg))
+    clean = locate(w.db, sky)
+    assert math.hypot(fix.x - clean.x, fix.y - clean.y) <= 1.0
+    assert abs(float(wrap_deg180(fix.heading_deg - clean.heading_deg))) <= 0.2
+    az = sky.azimuths_deg()
+    for start, width, _ in rocks:
+        mid = float(az[(start + width // 2) % el.size]) % 360.0
+        hit = [a for a in fix.above_dem if (mid - a["from_deg"]) % 360.0 <= (a["to_deg"] - a["from_deg"]) % 360.0]
+        assert hit and hit[0]["excess_deg"] > 1.0, (mid, fix.above_dem)
+    assert len(fix.above_dem) == len(rocks)  # nothing else is called an obstruction
+    assert not fix.below_dem
+    assert fix.to_json_dict()["above_dem_skyline"] == fix.above_dem
+    assert clean.above_dem == [] and clean.below_dem == []
+    # the overlay shades them: one legend entry, spans covering each boulder's world azimuth
+    from board.plots import draw_fix
+
+    fig = draw_fix(fix)
+    ax = fig.axes[1]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels.count("masked: above the DEM (rock?)") == 1
+    spans = [(p.get_x(), p.get_x() + p.get_width()) for p in ax.patches]
+    for start, width, _ in rocks:
+        world = (float(az[(start + width // 2) % el.size]) + fix.heading_deg) % 360.0
+        assert any(u <= world <= v for u, v in spans), (world, spans)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
 
 
 @pytest.mark.slow
