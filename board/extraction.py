@@ -154,15 +154,10 @@ def _failed(reason: str, pano: Panorama, det: Detection | None = None, diag: dic
 
 def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
     geom = pano.geometry
-    grey, _ = to_grey01(pano.image)
-    seen = pano.seen if pano.seen is not None else np.ones(grey.shape, dtype=bool)
+    seen = pano.seen if pano.seen is not None else np.ones(pano.image.shape[:2], dtype=bool)
     if not seen.any():
         return _failed("nothing seen: no frame covers the panorama (check the frames and the pan/tilt angles)", pano)
-    vals = grey[seen]
-    del grey                                     # the detector makes its own; keep the peak memory down
-    frac_black = float(np.mean(vals <= opt.black_level))
-    frac_sat = float(np.mean(vals >= opt.saturation_level))
-    del vals
+    frac_black, frac_sat = _exposure_fractions(pano.image, seen, opt.black_level, opt.saturation_level)
     diag = {"black_fraction": frac_black, "saturated_fraction": frac_sat}
     if geom.kind != "binary":
         if frac_black >= opt.bad_pixel_fraction:
@@ -207,6 +202,25 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
                                            "(low contrast, glare or saturation); the rest are masked")
     meta["status"] = status
     return ExtractionResult(skyline, status, reason, det.confidence, pano, det, diagnostics=diag)
+
+
+def _exposure_fractions(image: np.ndarray, seen: np.ndarray, black: float, saturated: float) -> tuple[float, float]:
+    """Fractions of the seen pixels whose grey level (fraction of full scale, as :func:`to_grey01` gives it) is
+    <= ``black`` and >= ``saturated``.  8/16-bit images: from the histogram of the integer grey image (no
+    full-size float copy), the levels compared in float32 as the float image would be."""
+    import cv2
+
+    img = np.asarray(image)
+    if img.dtype in (np.uint8, np.uint16) and (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
+        g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else np.ascontiguousarray(img)
+        full = 255 if img.dtype == np.uint8 else 65535
+        mask = np.ascontiguousarray(seen, dtype=bool).view(np.uint8)
+        hist = cv2.calcHist([g], [0], mask, [full + 1], [0, full + 1]).ravel().astype(np.float64)
+        levels = np.arange(full + 1, dtype=np.float32) * np.float32(1.0 / full)
+        n = max(hist.sum(), 1.0)
+        return float(hist[levels <= black].sum() / n), float(hist[levels >= saturated].sum() / n)
+    vals = to_grey01(img)[0][seen]
+    return float(np.mean(vals <= black)), float(np.mean(vals >= saturated))
 
 
 def _uniform_kind(grey: np.ndarray, seen: np.ndarray, *, texture_threshold: float = 0.01) -> str:

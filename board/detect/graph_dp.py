@@ -154,12 +154,17 @@ def _l1_transform(D: np.ndarray, lam_fb: np.ndarray, idx2: np.ndarray) -> tuple[
 
 
 def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = False, margin: int = 200,
-                     ) -> PathResult:
+                     offsets: np.ndarray | None = None) -> PathResult:
     """Path with one node per column minimising ``sum node_cost + jump_cost * sum |r_c - r_{c-1}|``.
 
     Any jump between neighbouring columns is allowed (cliffs) at ``jump_cost`` per row; the min over
     jumps is an L1 distance transform, two prefix minima per column.  ``wrap`` as in
     :func:`shortest_path_dp`.  rows_top == rows_exit == the row of each column.
+
+    offsets : (W,) int or None; row ``r`` of column ``c`` of ``node_cost`` is row ``r + offsets[c]`` of
+    the image (a band of rows that follows a line): the jumps are then counted in image rows,
+    ``|r_c + offsets[c] - r_{c-1} - offsets[c-1]|``, exactly (rows outside the band are not nodes).
+    The returned rows are band rows.
     """
     node = np.asarray(node_cost, dtype=np.float32)
     if node.ndim != 2 or min(node.shape) < 1:
@@ -178,10 +183,24 @@ def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = Fa
     pred = np.empty((n, H), dtype=np.int16 if H < 32767 else np.int32)
     D = nodeT[0].astype(np.float64)
     pred[0] = idx
-    for k in range(1, n):
-        T, a = _l1_transform(D, lam_fb, idx2)
-        D = T + nodeT[k]
-        pred[k] = a
+    if offsets is None:
+        for k in range(1, n):
+            T, a = _l1_transform(D, lam_fb, idx2)
+            D = T + nodeT[k]
+            pred[k] = a
+    else:
+        off = np.asarray(offsets, dtype=np.int64)
+        if off.shape != (W,):
+            raise InvalidInputError(f"offsets must have shape ({W},), got {off.shape}")
+        delta = np.diff(off[cols])
+        for k in range(1, n):
+            T, a = _l1_transform(D, lam_fb, idx2)
+            # image row r + off[k] seen from the band of column k - 1: band row x = r + delta; beyond
+            # the band the transform grows linearly from its end row
+            x = idx + delta[k - 1]
+            xc = np.clip(x, 0, H - 1)
+            D = T[xc] + jump_cost * np.abs(x - xc) + nodeT[k]
+            pred[k] = a[xc]
     r = int(np.argmin(D))
     cost = float(D[r])
     rows = np.empty(n, dtype=np.int64)

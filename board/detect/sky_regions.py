@@ -42,6 +42,7 @@ import numpy as np
 
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import seen_or_all, to_grey01
+from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +81,8 @@ class DetectorParams:
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
+    max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
+                                        # line then refined at full resolution in a band around it (0: never)
 
 
 @dataclass
@@ -265,25 +268,29 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
 
     seen : (H, W) bool, False where nothing was observed (never used as evidence); wrap : True for
     a 360-degree panorama.  Returns a :class:`Detection` (rows in pixels, see the module docstring).
+
+    Images of more than ``params.max_direct_pixels`` pixels are detected coarse to fine
+    (:func:`_detect_coarse_to_fine`): the whole detector on a copy reduced by an integer factor,
+    then the line and its confidence again at full resolution in a band of rows around it.
     """
+    img = np.asarray(image)
+    if img.ndim not in (2, 3):
+        raise InvalidInputError(f"an image is (H, W) or (H, W, 3), got shape {img.shape}")
+    H, W = img.shape[:2]
+    n = params.max_direct_pixels
+    if n > 0 and H * W > n and min(H, W) >= 128:
+        return _detect_coarse_to_fine(img, seen, wrap, params)
+    return _detect_direct(img, seen, wrap, params)
+
+
+def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, params: DetectorParams) -> Detection:
+    """The detector on the image as it is (see the module docstring)."""
     import cv2
 
-    grey, _full = to_grey01(image)
+    P = params
+    grey, blur, tex, chroma = _vertical_features(image, P)
     H, W = grey.shape
     seen = seen_or_all(seen, (H, W))
-    P = params
-    # vertical-only blur: a horizontal one would smear steep slopes into ramps and bias the line
-    if P.blur_sigma_px > 0:
-        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
-        blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
-    else:
-        blur = grey
-    tex = _texture(grey, P.texture_window_px)
-    tex += 1e-3
-    np.log(tex, out=tex)
-    chroma = _chroma(image) if P.use_colour else None
-    if chroma is not None and P.blur_sigma_px > 0:
-        chroma = cv2.sepFilter2D(chroma, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
 
     # first split, per azimuth sector: Otsu on the seen pixels; the sky class is the one filling
@@ -358,25 +365,7 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
         # the smooth features (intensity, colour) projected on their discriminant, scaled so that sky
         # is 0 and ground 1 in every column; its vertical step (r-1 -> r, stored at r) is the edge evidence
         proj, sd_proj_sky = _discriminant(feats, stats, step_features)
-        diff = np.zeros((H, W), dtype=np.float32)
-        np.subtract(proj[1:], proj[:-1], out=diff[1:])
-        diff[1:] *= seen_pair
-        # region cost of a boundary just above row b: sky-like pixels below + ground-like above
-        qcum = np.zeros((H + 1, W), dtype=np.float32)
-        np.cumsum(np.where(seen, p - np.float32(0.5), np.float32(0.0)), axis=0, out=qcum[1:])
-        node = qcum[:-1] * np.float32(-2.0)                # (H, W), boundary above row b
-        node += qcum[-1][None, :]
-        del qcum
-        node -= node.min(axis=0, keepdims=True)
-        node *= np.float32(1.0 / P.region_scale_px)
-        np.minimum(node, np.float32(P.region_cap), out=node)
-        # + edge term: 1 - (sky -> ground step, scaled to the scene contrast)
-        edge = diff * np.float32(2.0)
-        np.clip(edge, 0.0, 1.0, out=edge)
-        edge *= np.float32(-P.edge_weight)
-        edge += np.float32(P.edge_weight)
-        node += edge
-        del edge
+        node, diff = _node_cost(p, proj, seen, seen_pair, P)
         last = it + 1 >= max(1, P.iterations)
         if last or min(H, W) < 64:
             line = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap,
@@ -424,6 +413,162 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
     diag["valid_fraction"] = float(valid.mean())
+    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+
+
+def _node_cost(p: np.ndarray, proj: np.ndarray, seen: np.ndarray, seen_pair: np.ndarray, P: DetectorParams
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Node cost of a boundary just above each row (region + edge terms, see the module docstring) and the
+    vertical step of the discriminant (r-1 -> r, stored at r), both (H, W) float32."""
+    H, W = p.shape
+    diff = np.zeros((H, W), dtype=np.float32)
+    np.subtract(proj[1:], proj[:-1], out=diff[1:])
+    diff[1:] *= seen_pair
+    # region cost of a boundary just above row b: sky-like pixels below + ground-like above
+    qcum = np.zeros((H + 1, W), dtype=np.float32)
+    np.cumsum(np.where(seen, p - np.float32(0.5), np.float32(0.0)), axis=0, out=qcum[1:])
+    node = qcum[:-1] * np.float32(-2.0)                # (H, W), boundary above row b
+    node += qcum[-1][None, :]
+    del qcum
+    node -= node.min(axis=0, keepdims=True)
+    node *= np.float32(1.0 / P.region_scale_px)
+    np.minimum(node, np.float32(P.region_cap), out=node)
+    # + edge term: 1 - (sky -> ground step, scaled to the scene contrast)
+    edge = diff * np.float32(2.0)
+    np.clip(edge, 0.0, 1.0, out=edge)
+    edge *= np.float32(-P.edge_weight)
+    edge += np.float32(P.edge_weight)
+    node += edge
+    return node, diff
+
+
+def _reflect_rows(rows: np.ndarray, H: int) -> np.ndarray:
+    """Row indices mapped into [0, H) as ``cv2.BORDER_REFLECT`` extends an image (fedcba|abcdef|fedcba)."""
+    r = np.where(rows < 0, -rows - 1, rows)
+    r = np.where(r >= H, 2 * H - 1 - r, r)
+    return np.clip(r, 0, H - 1)
+
+
+def _vertical_features(image: np.ndarray, P: DetectorParams
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """grey, vertically blurred grey, log texture and (blurred) chroma of an image, as the detector makes them
+    (vertical-only blur: a horizontal one would smear steep slopes into ramps and bias the line)."""
+    import cv2
+
+    grey, _ = to_grey01(image)
+    if P.blur_sigma_px > 0:
+        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
+        blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
+    else:
+        blur = grey
+    tex = _texture(grey, P.texture_window_px)
+    tex += 1e-3
+    np.log(tex, out=tex)
+    chroma = _chroma(image) if P.use_colour else None
+    if chroma is not None and P.blur_sigma_px > 0:
+        chroma = cv2.sepFilter2D(chroma, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
+    return grey, blur, tex, chroma
+
+
+def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool, P: DetectorParams) -> Detection:
+    """Detection of a large image: the whole detector on a copy reduced ``f`` times (an integer, ``f^2`` of
+    about ``P.max_direct_pixels``), then at full resolution in a band of rows around that line: the
+    features, the classes re-fitted on the two sides of the coarse line (per sector, as in the re-fit of
+    the direct detector), the node costs, the smooth path (its jumps counted in image rows, exactly), the
+    sub-pixel position and the column confidence, which is also capped by the coarse one (whose windows
+    see ``f`` times further: a hazy ridge far above the line, a glare patch).  Only the reduced copy and
+    the band are ever held as float images."""
+    import cv2
+
+    H, W = img.shape[:2]
+    f = int(math.ceil(math.sqrt(H * W / P.max_direct_pixels)))
+    Hc, Wc = max(64, int(round(H / f))), max(64, int(round(W / f)))
+    src = img.astype(np.uint8) * np.uint8(255) if img.dtype == bool else img
+    small = cv2.resize(src, (Wc, Hc), interpolation=cv2.INTER_AREA)
+    del src
+    seen_c = None
+    if seen is not None:
+        seen = seen_or_all(seen, (H, W))
+        if seen.all():
+            seen = None
+        else:
+            # a reduced pixel is seen when all the pixels it averages are (unseen pixels are black)
+            seen_c = cv2.resize(seen.view(np.uint8) * np.uint8(255), (Wc, Hc), interpolation=cv2.INTER_AREA) >= 255
+    coarse = _detect_direct(small, seen_c, wrap, P)
+    del small, seen_c
+    diag = dict(coarse.diagnostics)
+    diag.update(height=H, width=W, pyramid_factor=f)
+    if not np.isfinite(coarse.raw_row).any():
+        return _empty(W, diag)
+    sy, sx = H / Hc, W / Wc
+    cols = np.arange(W)
+    centres = (np.arange(Wc) + 0.5) * sx - 0.5
+    guide_c = (coarse.raw_row + 0.5) * sy - 0.5
+    guide = np.interp(cols, centres, guide_c, period=W) if wrap else np.interp(cols, centres, guide_c)
+    conf_c = coarse.confidence[np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)]
+    n_seen_col = np.full(W, H) if seen is None else seen.sum(axis=0)
+    del coarse
+
+    R = P.region_window_px + P.contrast_window_px + 4 * f       # band rows each side of the coarse line
+    M = P.texture_window_px + 2 + int(math.ceil(3 * P.blur_sigma_px))   # filter margin, cropped after
+    Hb = 2 * R
+    off = np.rint(guide).astype(np.int64) - R                   # image row of band row 0, per column
+    rows = off[None, :] + np.arange(-M, Hb + M)[:, None]
+    band = img[_reflect_rows(rows, H), cols[None, :]]
+    rows = rows[M:-M]
+    bseen = (rows >= 0) & (rows < H)
+    if seen is not None:
+        bseen &= seen[np.clip(rows, 0, H - 1), cols[None, :]]
+    del rows
+    grey, blur, tex, chroma = (None if a is None else a[M:-M] for a in _vertical_features(band, P))
+    del band
+    feats = [blur, tex]
+    floors = [0.01, 0.05]
+    step_features = [0]
+    if chroma is not None:
+        feats.append(chroma)
+        floors.append(0.01)
+        step_features.append(2)
+    sky_cls, ground_cls = _bands_from_line(guide - off, Hb, P.refit_margin_px + f, P.sky_band_px)
+    sky_cls &= bseen
+    ground_cls &= bseen
+    if sky_cls.sum() < 50 or ground_cls.sum() < 50:
+        return _empty(W, diag | {"reason": "one class only"})
+    edges = _sector_edges(W, P.n_sectors)
+    p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
+                          caps=[None, P.smooth_evidence_cap, None][:len(feats)], broaden=P.ground_broadening)
+    del sky_cls, ground_cls
+    np.clip(p, -20.0, 20.0, out=p)
+    np.negative(p, out=p)
+    np.exp(p, out=p)
+    p += 1.0
+    np.reciprocal(p, out=p)
+    mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
+    if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
+        return _empty(W, diag | {"reason": "one class only"})
+    polarity = np.where(mu_g >= mu_s, 1.0, -1.0).astype(np.float32)
+    proj, sd_proj_sky = _discriminant(feats, stats, step_features)
+    seen_pair = bseen[1:] & bseen[:-1]
+    node, diff = _node_cost(p, proj, bseen, seen_pair, P)
+    b = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
+                         offsets=off).rows_top
+    del node
+    sep_col = np.abs(mu_g - mu_s) / np.hypot(sd_s, sd_g)
+    istep = np.zeros((Hb, W), dtype=np.float32)
+    np.subtract(blur[1:], blur[:-1], out=istep[1:])
+    istep[1:] *= seen_pair
+    istep *= polarity[None, :]
+    y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
+    del istep, diff
+    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P), conf_c)
+    valid = conf >= P.min_confidence
+    valid &= n_seen_col > 0
+    long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
+    valid &= _grow_mask(long_bad, P.mask_margin_columns, wrap)
+    valid = _drop_short_runs(valid, P.min_run_columns, wrap)
+    y = y + off
+    diag["valid_fraction"] = float(valid.mean())
+    diag["refined_shift_px_median"] = float(np.median(np.abs(y - guide)))
     return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
 
 

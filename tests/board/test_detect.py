@@ -15,6 +15,15 @@ from board.detect.sky_regions import _drop_short_runs
 from board.synthetic import SceneLook, SkylineFunction, synth_panorama
 
 GEOM = PanoramaGeometry.full_circle(1200, 300, elevation_top_deg=30.0, elevation_bottom_deg=-15.0)
+# the detector as it runs on images of this size, and coarse to fine (as on images of more than
+# DetectorParams.max_direct_pixels): a copy reduced 2 times, then the band at full resolution
+DIRECT = DetectorParams()
+COARSE_TO_FINE = DetectorParams(max_direct_pixels=GEOM.width * GEOM.height // 4)
+
+
+@pytest.fixture(params=[DIRECT, COARSE_TO_FINE], ids=["direct", "coarse_to_fine"])
+def params(request):
+    return request.param
 
 
 def _u8(img):
@@ -87,6 +96,35 @@ def test_l1_path_equals_brute_force(seed):
     assert tuple(res.rows_top) == best[1]
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_l1_path_in_a_band_equals_brute_force(seed):
+    # a band of rows that follows a line: row r of column c is image row r + off[c]; jumps in image rows
+    rng = np.random.default_rng(100 + seed)
+    H, W = 4, 5
+    node = rng.random((H, W))
+    off = rng.integers(-3, 4, W)
+    lam = float(rng.uniform(0, 0.6))
+    res = shortest_path_l1(node, jump_cost=lam, offsets=off)
+    best = min((sum(node[r[c], c] for c in range(W))
+                + lam * sum(abs(r[c] + off[c] - r[c - 1] - off[c - 1]) for c in range(1, W)), r)
+               for r in itertools.product(range(H), repeat=W))
+    assert res.cost == pytest.approx(best[0], abs=1e-5)
+    assert tuple(res.rows_top) == best[1]
+
+
+def test_l1_path_in_a_band_around_the_optimum_is_the_optimum():
+    rng = np.random.default_rng(3)
+    H, W, Hb = 120, 400, 24
+    c = np.arange(W)
+    valley = 60 + 30 * np.sin(2 * np.pi * c / W) + np.where((c > 100) & (c < 160), 25, 0)    # with cliffs
+    node = np.abs(np.arange(H)[:, None] - valley[None, :]) * 0.05 + rng.random((H, W))
+    full = shortest_path_l1(node, jump_cost=0.3, wrap=True, margin=80).rows_top
+    off = np.clip(full - Hb // 2 + rng.integers(-5, 6, W), 0, H - Hb)
+    band = node[off[None, :] + np.arange(Hb)[:, None], c[None, :]]
+    res = shortest_path_l1(band, jump_cost=0.3, wrap=True, margin=80, offsets=off)
+    np.testing.assert_array_equal(res.rows_top + off, full)
+
+
 def test_wrapped_path_closes_the_circle():
     # a cost valley that is a sinusoid over the circle: the wrapped path must follow it across the seam
     H, W = 60, 400
@@ -99,10 +137,10 @@ def test_wrapped_path_closes_the_circle():
 
 # -- detectors --------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", [11, 12, 13])
-def test_clean_panorama_within_one_pixel(seed):
+def test_clean_panorama_within_one_pixel(seed, params):
     f = SkylineFunction.random(seed)
     img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=seed))
-    det = detect_skyline(img, wrap=True)
+    det = detect_skyline(img, wrap=True, params=params)
     err = det.line_row - _truth_rows(f)
     assert det.valid.mean() >= 0.98
     assert np.nanmean(np.abs(err)) <= 0.5
@@ -112,10 +150,10 @@ def test_clean_panorama_within_one_pixel(seed):
 @pytest.mark.parametrize("look,name", [(SceneLook(sky_top=0.03, sky_horizon=0.03, ground=0.5), "black sky (Moon)"),
                                        (SceneLook(sky_top=0.35, sky_horizon=0.3, ground=0.75, texture=0.1),
                                         "sky darker than ground")])
-def test_polarity_is_learnt_from_the_picture(look, name):
+def test_polarity_is_learnt_from_the_picture(look, name, params):
     f = SkylineFunction.random(21)
     img = _u8(synth_panorama(GEOM, f, look=look, noise_sigma=0.01, seed=2))
-    det = detect_skyline(img, wrap=True)
+    det = detect_skyline(img, wrap=True, params=params)
     err = det.line_row - _truth_rows(f)
     assert det.valid.mean() >= 0.95, name
     assert np.nanmean(np.abs(err)) <= 0.6, name
@@ -132,11 +170,11 @@ def test_binary_panorama_half_pixel():
     assert np.nanmax(np.abs(err)) <= 0.75   # the line lies between two pixel centres: <= half a pixel + slack
 
 
-def test_noise_and_dust_masked_rather_than_wrong():
+def test_noise_and_dust_masked_rather_than_wrong(params):
     f = SkylineFunction.random(31)
     look = SceneLook(dust=((40.0, 120.0, 0.9),))
     img = _u8(synth_panorama(GEOM, f, look=look, noise_sigma=0.04, seed=3))
-    det = detect_skyline(img, wrap=True)
+    det = detect_skyline(img, wrap=True, params=params)
     err = det.line_row - _truth_rows(f)
     az = GEOM.azimuths_deg()
     dusty = (az > 45) & (az < 115)
@@ -147,33 +185,33 @@ def test_noise_and_dust_masked_rather_than_wrong():
     assert np.nanmax(np.abs(err)) <= 3.0
 
 
-def test_glare_sector_masked():
+def test_glare_sector_masked(params):
     f = SkylineFunction.random(41)
     img = synth_panorama(GEOM, f, noise_sigma=0.02, seed=4)
     img[:, 200:330] = np.clip(img[:, 200:330] * 3.0, 0, 1)    # both sides of the line saturate
-    det = detect_skyline(_u8(img), wrap=True)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
     assert det.valid[210:320].mean() <= 0.1
     err = det.line_row - _truth_rows(f)
     assert np.nanmax(np.abs(err)) <= 3.0
 
 
-def test_unseen_columns_are_never_given_a_line():
+def test_unseen_columns_are_never_given_a_line(params):
     f = SkylineFunction.random(51)
     img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=5))
     seen = np.ones(img.shape, bool)
     seen[:, 500:800] = False
     img[~seen] = 0
-    det = detect_skyline(img, seen=seen, wrap=True)
+    det = detect_skyline(img, seen=seen, wrap=True, params=params)
     assert not det.valid[500:800].any()
     err = det.line_row - _truth_rows(f)
     assert np.nanmean(np.abs(err)) <= 0.5
 
 
-def test_line_above_the_view_is_masked():
+def test_line_above_the_view_is_masked(params):
     # the panorama's top cuts through the terrain in a sector: no sky seen there, the line is doubtful
     f = SkylineFunction(3.0, ((1, 1.0, 0.0),), ((180.0, 40.0, 20.0),))
     img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01, seed=6))
-    det = detect_skyline(img, wrap=True)
+    det = detect_skyline(img, wrap=True, params=params)
     az = GEOM.azimuths_deg()
     hidden = f(az) > 30.0 - GEOM.elevation_step_deg    # skyline at or above the top row there
     assert not det.valid[hidden].any()
@@ -191,6 +229,22 @@ def test_baseline_runs_the_report_method():
     assert np.median(np.abs(rows - _truth_rows(f))) <= 1.5
 
 
+def test_large_panorama_coarse_to_fine_as_accurate_as_direct():
+    # 2400 x 600 px (more than max_direct_pixels): reduced 2 times, then refined at full resolution
+    g = PanoramaGeometry.full_circle(2400, 600, elevation_top_deg=30.0, elevation_bottom_deg=-15.0)
+    f = SkylineFunction.random(14)
+    img = _u8(synth_panorama(g, f, noise_sigma=0.02, seed=3))
+    img = np.repeat(img[..., None], 3, axis=2)
+    truth = _truth_rows(f, g)
+    det = detect_skyline(img, wrap=True)
+    assert det.diagnostics["pyramid_factor"] == 2
+    direct = detect_skyline(img, wrap=True, params=DetectorParams(max_direct_pixels=0))
+    err, err_direct = np.abs(det.line_row - truth), np.abs(direct.line_row - truth)
+    assert det.valid.mean() >= 0.98 and det.valid.mean() >= direct.valid.mean() - 0.005
+    assert np.nanmean(err) <= np.nanmean(err_direct) + 0.02
+    assert np.nanmax(err) <= 2.0
+
+
 def test_drop_short_runs_wraps():
     v = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1, 0, 1, 1], bool)
     out = _drop_short_runs(v, 3, wrap=True)
@@ -199,7 +253,7 @@ def test_drop_short_runs_wraps():
     np.testing.assert_array_equal(out, [0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0])
 
 
-def test_ground_brighter_than_sky_on_one_side_only():
+def test_ground_brighter_than_sky_on_one_side_only(params):
     # sunlit flank: the ground is darker than the sky on one half of the circle, brighter on the other
     f = SkylineFunction.random(71)
     shaded = synth_panorama(GEOM, f, look=SceneLook(sky_top=0.6, sky_horizon=0.55, ground=0.3), noise_sigma=0.01)
@@ -207,7 +261,7 @@ def test_ground_brighter_than_sky_on_one_side_only():
                             noise_sigma=0.01, seed=1)
     img = shaded.copy()
     img[:, GEOM.width // 2:] = sunlit[:, GEOM.width // 2:]
-    det = detect_skyline(_u8(img), wrap=True)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
     err = det.line_row - _truth_rows(f)
     half = GEOM.width // 2
     assert det.valid[:half].mean() >= 0.9 and det.valid[half:].mean() >= 0.9
@@ -232,19 +286,19 @@ def _two_class_image(rows_far, rows_near, *, sky, ground, haze_t, noise=0.01, te
     return np.clip(img + noise * rng.standard_normal(img.shape), 0, 1)
 
 
-def test_sky_and_ground_of_the_same_grey_told_apart_by_colour():
+def test_sky_and_ground_of_the_same_grey_told_apart_by_colour(params):
     f = SkylineFunction.random(5)
     rows = _truth_rows(f)
     # BGR: a bluish sky and a tan ground of about the same grey level (0.61 and 0.64)
     img = _two_class_image(rows, rows, sky=(0.70, 0.62, 0.55), ground=(0.45, 0.60, 0.78), haze_t=1.0)
-    det = detect_skyline(_u8(img), wrap=True)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
     assert det.valid.mean() >= 0.9
     assert np.nanmean(np.abs(det.line_row - rows)) <= 1.0
     grey_only = detect_skyline(_u8(img), wrap=True, params=DetectorParams(use_colour=False))
     assert grey_only.valid.mean() < 0.5                        # grey alone cannot see this boundary
 
 
-def test_line_under_a_hazy_distant_ridge_is_never_kept():
+def test_line_under_a_hazy_distant_ridge_is_never_kept(params):
     f = SkylineFunction.random(9)
     far = _truth_rows(f)
     near = far.copy()
@@ -252,7 +306,7 @@ def test_line_under_a_hazy_distant_ridge_is_never_kept():
     sector = (cols > 300) & (cols < 700)
     near[sector] = far[sector] + 12 + 6 * np.sin(cols[sector] / 40.0)   # a nearer, lower ridge 3-4 deg down
     img = _two_class_image(far, near, sky=(0.6, 0.6, 0.6), ground=(0.3, 0.3, 0.3), haze_t=0.45)
-    det = detect_skyline(_u8(img), wrap=True)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
     kept = det.valid & sector
     # kept columns of the sector are on the far ridge (the skyline), never on the near one
     assert np.all(np.abs(det.line_row[kept] - far[kept]) <= 2.0)
