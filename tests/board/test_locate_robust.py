@@ -84,7 +84,8 @@ def test_masked_columns_are_reported_as_sectors_above_or_below_the_dem_skyline()
     above, below = sectors_at_fix(Skyline(el), masked, db_skyline_deg=db, db_azimuth_start_deg=0.0,
                                   heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, offset_deg=offset)
     assert [(a["from_deg"], a["to_deg"], a["n"]) for a in above] == [(40.0, 43.0, 4), (358.0, 1.0, 4)]
-    assert above[0]["excess_deg"] == pytest.approx(3.5, abs=0.02) and above[1]["excess_deg"] == pytest.approx(5, abs=0.02)
+    assert above[0]["excess_deg"] == pytest.approx(3.5, abs=0.02)
+    assert above[1]["excess_deg"] == pytest.approx(5, abs=0.02)
     assert [(b["from_deg"], b["to_deg"], b["n"]) for b in below] == [(220.0, 221.0, 2)]
     assert below[0]["excess_deg"] == pytest.approx(-2.0, abs=0.02)
     none = sectors_at_fix(Skyline(el), np.zeros(360, bool), db_skyline_deg=db, db_azimuth_start_deg=0.0,
