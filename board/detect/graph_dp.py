@@ -177,36 +177,53 @@ def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = Fa
     nodeT = np.ascontiguousarray(node.T[cols])
     n = cols.size
     idx = np.arange(H)
-    lam_idx = jump_cost * idx.astype(np.float64)
-    lam_fb = np.stack([-lam_idx, lam_idx[::-1]])
-    idx2 = np.stack([idx, idx])
-    pred = np.empty((n, H), dtype=np.int16 if H < 32767 else np.int32)
-    D = nodeT[0].astype(np.float64)
-    pred[0] = idx
+    lam = jump_cost * idx.astype(np.float64)
     if offsets is None:
-        for k in range(1, n):
-            T, a = _l1_transform(D, lam_fb, idx2)
-            D = T + nodeT[k]
-            pred[k] = a
+        delta = np.zeros(max(n - 1, 0), dtype=np.int64)
     else:
         off = np.asarray(offsets, dtype=np.int64)
         if off.shape != (W,):
             raise InvalidInputError(f"offsets must have shape ({W},), got {off.shape}")
         delta = np.diff(off[cols])
-        for k in range(1, n):
-            T, a = _l1_transform(D, lam_fb, idx2)
-            # image row r + off[k] seen from the band of column k - 1: band row x = r + delta; beyond
-            # the band the transform grows linearly from its end row
-            x = idx + delta[k - 1]
+    # forward: the cost D_k of every row of every column (float64, kept for the backtrack).  The L1
+    # transform min_r' D(r') + lam |r - r'| is the smaller of a forward and a backward prefix minimum
+    Ds = np.empty((n, H))
+    Ds[0] = nodeT[0]
+    vf, vb = np.empty(H), np.empty(H)
+    for k in range(1, n):
+        D = Ds[k - 1]
+        np.subtract(D, lam, out=vf)
+        np.minimum.accumulate(vf, out=vf)
+        vf += lam
+        np.add(D, lam, out=vb)
+        np.minimum.accumulate(vb[::-1], out=vb[::-1])
+        vb -= lam
+        np.minimum(vf, vb, out=vf)
+        d = int(delta[k - 1])
+        if d == 0:
+            np.add(vf, nodeT[k], out=Ds[k])
+        else:
+            # image row r + off[k] seen from the band of column k - 1: band row x = r + d; beyond the
+            # band the transform grows linearly from its end row
+            x = idx + d
             xc = np.clip(x, 0, H - 1)
-            D = T[xc] + jump_cost * np.abs(x - xc) + nodeT[k]
-            pred[k] = a[xc]
-    r = int(np.argmin(D))
-    cost = float(D[r])
+            Ds[k] = vf[xc] + jump_cost * np.abs(x - xc) + nodeT[k]
+    r = int(np.argmin(Ds[-1]))
+    cost = float(Ds[-1, r])
     rows = np.empty(n, dtype=np.int64)
-    for k in range(n - 1, -1, -1):
-        rows[k] = r
-        r = int(pred[k, r])
+    rows[-1] = r
+    # backtrack: the row of column k - 1 the transform took for row r of column k (same sums, same ties:
+    # forward the nearest row at or above, backward the nearest at or below, forward on equal costs)
+    for k in range(n - 1, 0, -1):
+        D = Ds[k - 1]
+        x = min(max(r + int(delta[k - 1]), 0), H - 1)
+        f = D[:x + 1] - lam[:x + 1]
+        rf = x - int(np.argmin(f[::-1]))
+        b = D[x:] + lam[x:]
+        rb = x + int(np.argmin(b))
+        r = rb if (b[rb - x] - lam[x]) < (f[rf] + lam[x]) else rf
+        rows[k - 1] = r
     if m:
         rows = rows[m:m + W]
     return PathResult(rows, rows.copy(), cost)
+

@@ -156,9 +156,21 @@ def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
         return float("nan"), floor
     if values.size > 20_000:
         values = values[:: values.size // 20_000]
-    med = float(np.median(values))
-    mad = 1.4826 * float(np.median(np.abs(values - med)))
+    med = _median(values)
+    mad = 1.4826 * _median(np.abs(values - med))
     return med, max(mad, floor)
+
+
+def _median(v: np.ndarray) -> float:
+    """``float(np.median(v))`` of a finite 1-D array, bit for bit, with one partition and without np.median's
+    per-call overhead (the class fits take a few hundred medians per image)."""
+    n = v.size
+    k = n // 2
+    p = np.partition(v, k)
+    if n % 2:
+        return float(p[k])
+    # the mean of the two middle values as np.median takes it: their sum in the array's type, halved
+    return float((p[:k].max() + p[k]) * v.dtype.type(0.5))
 
 
 def _sector_edges(W: int, n_sectors: int) -> np.ndarray:
