@@ -176,7 +176,9 @@ def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, d
     from blender_addon.scene.camera import place_camera
 
     deg = degradation if degradation is not None else degrade.get_degradation(case.preset)
-    deg = replace(deg, sun=SunParams(azimuth_deg=case.sun_azimuth_deg, elevation_deg=case.sun_elevation_deg))
+    # the case's sun direction; the look's sunlight (a body's look has its own strength) is kept
+    deg = replace(deg, sun=replace(deg.sun, azimuth_deg=case.sun_azimuth_deg, elevation_deg=case.sun_elevation_deg,
+                                   relative=False))
     info = dressing.dress_scene(terrain, deg, center_xy=(case.x, case.y), heading_deg=case.heading_deg,
                                 seed=case.seed, texture_seed=case.texture_seed, samples=case.samples)
     if dark_sky:

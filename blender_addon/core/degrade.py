@@ -125,6 +125,9 @@ class SensorParams:
     read_noise_e : read noise standard deviation, electrons
     glare : veiling glare strength around the sun (0 = none)
     bit_depth : 8 or 16 bits per channel in the written image
+    auto_exposure : the camera sets its exposure for the scene, as a NavCam does: sunlight and regolith
+        albedo that differ from Mars' are compensated (:func:`auto_exposure_gain`), so an Earth scene
+        under 2.3 times Mars' sunlight is not rendered clipped to white; ``exposure_ev`` is an error on top
     """
 
     exposure_ev: float = 0.0
@@ -132,6 +135,7 @@ class SensorParams:
     read_noise_e: float = 0.0
     glare: float = 0.0
     bit_depth: int = 8
+    auto_exposure: bool = True
 
 
 @dataclass(frozen=True)
@@ -282,6 +286,24 @@ PRESETS: dict[str, Degradation] = {
         sensor=SensorParams(full_well_e=12_000.0, read_noise_e=15.0),
     ),
 }
+
+
+#: the scene the camera's exposure is set for: Mars regolith (albedo 0.22) in Mars sunlight (strength 1)
+AUTO_EXPOSURE_REFERENCE = 0.22
+
+
+def auto_exposure_gain(deg: Degradation) -> float:
+    """Linear gain of a camera that sets its exposure for the scene (1 for the Mars looks).
+
+    ``AUTO_EXPOSURE_REFERENCE / (regolith_albedo x sun strength)``: the sunlit ground is exposed as
+    Mars regolith in Mars sunlight is, whatever the body (Earth: 0.38, 1.2 stops down; Moon: 0.79;
+    Europa's bright ice in 1/12 of the sunlight: 4.3).  1 without ``sensor.auto_exposure`` and for
+    binary looks.  Applied to the scene's light (sun and sky) before the render, so nothing clips
+    that a real exposure would not clip.
+    """
+    if deg.binary or not deg.sensor.auto_exposure:
+        return 1.0
+    return AUTO_EXPOSURE_REFERENCE / max(deg.regolith_albedo * deg.sun.strength, 1e-6)
 
 
 def get_degradation(name: str) -> Degradation:

@@ -29,7 +29,7 @@ import bpy  # noqa: TID251 (scene building is the bpy layer)
 import numpy as np
 
 from blender_addon.core import rocks as rocklib
-from blender_addon.core.degrade import RENDER_HEADROOM_EV, Degradation
+from blender_addon.core.degrade import RENDER_HEADROOM_EV, Degradation, auto_exposure_gain
 from blender_addon.core.terrain_mesh import scene_z
 from blender_addon.scene import state
 from blender_addon.scene.render import clear_binary, configure_binary, configure_cycles
@@ -87,7 +87,7 @@ def airmass(elevation_deg: float) -> float:
 def sky_radiances(deg: Degradation) -> tuple[np.ndarray, np.ndarray, float]:
     """(horizon RGB, zenith RGB, aureole gain) in linear full-well units for the sky settings."""
     sun_el = deg.sun.elevation_deg
-    e0 = SUN_IRRADIANCE * deg.sun.strength
+    e0 = SUN_IRRADIANCE * deg.sun.strength * auto_exposure_gain(deg)
     lift = max(math.sin(math.radians(sun_el)) + 0.08, 0.02)
     if deg.sky.clear or deg.sky.dust_tau <= 0:
         # a bright, dust-free reference sky: 2-3 times the sunlit regolith, bluish white
@@ -222,7 +222,8 @@ def _surface_material(mat: bpy.types.Material, deg: Degradation, base_rgb: np.nd
 def _world(scene: bpy.types.Scene, deg: Degradation, sun_enu: np.ndarray) -> None:
     """Sky: horizon/zenith gradient in elevation plus an aureole around the sun."""
     world = bpy.data.worlds.get(WORLD_NAME) or bpy.data.worlds.new(WORLD_NAME)
-    key = repr((deg.sky, deg.sun.elevation_deg, deg.sun.strength, np.round(sun_enu, 9).tolist()))
+    key = repr((deg.sky, deg.sun.elevation_deg, deg.sun.strength, auto_exposure_gain(deg),
+                np.round(sun_enu, 9).tolist()))
     scene.world = world
     if world.get("skyloc_key") == key:     # unchanged: keep it (Cycles keeps its light importance map)
         return
@@ -271,7 +272,8 @@ def _sun(scene: bpy.types.Scene, deg: Degradation, sun_enu: np.ndarray) -> None:
         scene.collection.objects.link(obj)
     light = obj.data
     light.angle = math.radians(SUN_DIAMETER_DEG)
-    light.energy = SUN_IRRADIANCE * deg.sun.strength * sun_transmission(deg) if deg.sun.elevation_deg > -0.5 else 0.0
+    light.energy = (SUN_IRRADIANCE * deg.sun.strength * auto_exposure_gain(deg) * sun_transmission(deg)
+                    if deg.sun.elevation_deg > -0.5 else 0.0)
     light.color = (1.0, 0.97, 0.92)
     # the lamp shines along its local -Z: point -Z away from the sun
     from mathutils import Vector

@@ -1,6 +1,8 @@
 """Degradations: noise statistics, distortion against board.camera, dispersion, seeds, parameters."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -233,6 +235,24 @@ def test_realistic_and_distorted_take_the_body_of_the_terrain():
     assert look_on_body("realistic", "moon").sky.dust_tau == 0.0  # no dust on an airless body
     with pytest.raises(InvalidInputError, match="unknown degradation preset"):
         look_on_body("foggy", "mars")
+
+
+def test_the_camera_exposes_for_the_scene_on_every_body():
+    """Auto-exposure: gain 1 for the Mars looks (the reference), and sunlight x albedo compensated elsewhere:
+    the sunlit ground of every body's look is exposed as Mars regolith in Mars sunlight."""
+    from blender_addon.core.degrade import AUTO_EXPOSURE_REFERENCE, PRESETS, auto_exposure_gain, look_for_body
+    from board.conventions import BODIES
+
+    for name in ("clean", "realistic", "distorted", "binary"):
+        assert auto_exposure_gain(PRESETS[name]) == pytest.approx(1.0)
+    for body in BODIES:
+        d = PRESETS[look_for_body(body)]
+        ground = d.regolith_albedo * d.sun.strength * auto_exposure_gain(d)
+        assert ground == pytest.approx(AUTO_EXPOSURE_REFERENCE)
+    earth = PRESETS["realistic-earth"]
+    assert auto_exposure_gain(earth) == pytest.approx(0.22 / (0.25 * 1.52 ** 2), rel=0.01)  # 1.2 stops down
+    manual = replace(earth, sensor=replace(earth.sensor, auto_exposure=False))
+    assert auto_exposure_gain(manual) == 1.0  # a fixed exposure: Earth's sunlight over-exposes
 
 
 def test_a_look_names_a_known_body():

@@ -135,3 +135,22 @@ def test_near_rocks_do_not_give_wrong_columns(site):
     rocks = RockParams(density_per_m2=0.0, near_count=5, near_distance_m=(2.5, 4.0), near_diameter_m=(2.0, 3.0))
     deg = replace(degrade.get_degradation("realistic"), rocks=rocks)
     _check(*_render(site, "rocks", _case("realistic", seed=8), degradation=deg), min_kept=0.7)
+
+
+def test_earth_sunlight_is_exposed_for_and_not_clipped(site):
+    """The Earth look has 2.3 times Mars' sunlight: with the NavCam's auto-exposure the sunlit slopes and the
+    sky near the horizon keep their tones (nearly nothing at full scale) and the skyline is kept; with a fixed
+    exposure (auto_exposure off, the look before) they clip to white."""
+    from board.acquisition import load_panorama as _load
+
+    earth = degrade.get_degradation("realistic-earth")
+    fixed = replace(earth, sensor=replace(earth.sensor, auto_exposure=False))
+    clipped = {}
+    for name, deg in (("earth", earth), ("earth-fixed", fixed)):
+        res, truth, view = _render(site, name, _case("realistic", sun_el=50.0), degradation=deg)
+        img = np.asarray(_load(site[1] / name / "pano").image)
+        clipped[name] = float(np.mean(img.reshape(-1, img.shape[-1]).max(axis=1) >= 250))
+        if name == "earth":
+            _check(res, truth, view, min_kept=0.75)
+    assert clipped["earth"] < 0.01, clipped
+    assert clipped["earth-fixed"] > 5 * max(clipped["earth"], 0.01), clipped  # the control: it clips without
