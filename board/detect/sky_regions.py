@@ -77,6 +77,7 @@ class DetectorParams:
     smooth_evidence_cap: float = 0.5    # most sky evidence (log-likelihood ratio) smoothness alone may give
     above_step_window_px: int = 3       # rows each side of a step looked for above the line
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
+    colour_step_above: bool = True      # the step-above check also on the colour feature alone
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
@@ -413,7 +414,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     istep *= polarity[None, :]
     y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
     del istep
-    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P)
+    colour_proj = _discriminant(feats, stats, [2])[0] if chroma is not None and P.colour_step_above else None
+    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj)
+    del colour_proj
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
     # grow only the masked runs that are long enough to have dragged the smooth path off the line
@@ -572,7 +575,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     istep *= polarity[None, :]
     y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
     del istep, diff
-    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P), conf_c)
+    colour_proj = _discriminant(feats, stats, [2])[0] if chroma is not None and P.colour_step_above else None
+    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj), conf_c)
+    del colour_proj
     valid = conf >= P.min_confidence
     valid &= n_seen_col > 0
     long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
@@ -648,11 +653,22 @@ def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tup
     return proj, np.sqrt(var_s)
 
 
+def _no_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0 where it
+    has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky)."""
+    s_above, s_noise = _largest_step_above(proj, seen, b, P.above_step_window_px)
+    lo, hi = P.above_step_range
+    lo = max(lo, 6.0 * s_noise)
+    hi = max(hi, lo + 0.05)
+    return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1)
+
+
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
-                sigma_sky: np.ndarray, P: DetectorParams) -> np.ndarray:
+                sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None) -> np.ndarray:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring).
 
-    proj : the discriminant image (sky 0, ground 1 per column); sigma_sky : its sky spread."""
+    proj : the discriminant image (sky 0, ground 1 per column); sigma_sky : its sky spread;
+    colour_proj : the same scaling of the colour feature alone (None for grey images)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(proj, sf, b, -w, 0)
@@ -686,11 +702,12 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    s_above, s_noise = _largest_step_above(proj, seen, b, P.above_step_window_px)
-    lo, hi = P.above_step_range
-    lo = max(lo, 6.0 * s_noise)
-    hi = max(hi, lo + 0.05)
-    c_above = 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1)
+    c_above = _no_step_above(proj, seen, b, P)
+    if colour_proj is not None:
+        # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
+        # make the intensity-and-colour discriminant of the ground strip between them look like sky,
+        # while its colour is plainly the ground's
+        c_above = np.minimum(c_above, _no_step_above(colour_proj, seen, b, P))
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
               "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
