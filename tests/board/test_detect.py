@@ -316,3 +316,37 @@ def test_line_under_a_hazy_distant_ridge_is_never_kept(params):
                                params=DetectorParams(above_step_range=(1e9, 2e9)))
     wrong = unchecked.valid & sector & (np.abs(unchecked.raw_row - far) > 4)
     assert wrong.sum() >= 20
+
+
+def test_sunlit_strip_brighter_than_the_sky_above_a_shaded_slope_is_ground(params):
+    """A shaded slope in front of a sunlit one that is brighter than a grey-blue sky (auto-exposed Earth
+    view): the strongest step is the shaded/sunlit one, 3-4 deg below the skyline.  The sunlit strip's colour
+    is the ground's, so the line must be on the sky/sunlit boundary or masked, never on the lower step."""
+    f = SkylineFunction.random(23)
+    far = _truth_rows(f)
+    cols = np.arange(GEOM.width)
+    sector = (cols > 400) & (cols < 640)
+    near = far + np.where(sector, 14 + 4 * np.sin(cols / 30.0), 0.0)
+    rng = np.random.default_rng(4)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None] + 0.5
+    sky, sunlit, shaded = np.array([0.50, 0.46, 0.42]), np.array([0.55, 0.66, 0.80]), np.array([0.16, 0.18, 0.21])
+    img = np.broadcast_to(sky, (H, W, 3)).copy() * (1.0 + 0.08 * (r / H))[..., None]
+    tex = 0.01 * rng.standard_normal((H, W, 1))
+    strip = (r >= far[None, :]) & (r < near[None, :])
+    below = (r >= near[None, :]) & sector[None, :]
+    img[strip] = (sunlit + tex)[strip]
+    img[below] = (shaded + tex)[below]
+    rest = (r >= far[None, :]) & ~sector[None, :]
+    img[rest] = (sunlit + tex)[rest]
+    img = np.clip(img + 0.01 * rng.standard_normal(img.shape), 0, 1)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
+    kept = det.valid & sector
+    assert np.all(np.abs(det.line_row[kept] - far[kept]) <= 3.0)   # the lower step is 10-18 rows down
+    assert det.valid[~sector].mean() >= 0.9
+    assert np.nanmean(np.abs(det.line_row[~sector] - far[~sector])) <= 1.0
+    from dataclasses import replace
+
+    unchecked = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_step_above=False))
+    wrong = unchecked.valid & sector & (np.abs(unchecked.raw_row - far) > 6)
+    assert wrong.sum() >= 10  # without the colour-only check the line follows the lower step, kept
