@@ -179,10 +179,11 @@ def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
     """(status, reason) of a fix: the first rule that applies, in the order failed, ambiguous, ok.
 
     failed: the RMS residual exceeds ``th.max_rms_deg``.  ambiguous: the likelihood mass far from the
-    fix exceeds ``th.max_far_mass``; or the position's 1-sigma exceeds ``th.max_sigma_steps`` grid
-    steps or (outside heading mode) ``th.max_sigma_m`` metres; or the position is pinned to the edge of
-    the searched area; or the heading's 1-sigma exceeds ``th.max_sigma_heading_deg``.  The reason says
-    what and the fix where there is one.
+    fix exceeds ``th.max_far_mass``; or the position is pinned to the edge of the searched area (the
+    likely cause of a large sigma, so said first); or the position's 1-sigma exceeds
+    ``th.max_sigma_steps`` grid steps or (outside heading mode) ``th.max_sigma_m`` metres; or the
+    heading's 1-sigma exceeds ``th.max_sigma_heading_deg``.  The reason says what and the fix where
+    there is one.
     """
     step = ev.step_m
     if ev.rms_deg > th.max_rms_deg:
@@ -193,15 +194,15 @@ def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
         return STATUS_AMBIGUOUS, (f"{ev.far_mass:.0%} of the likelihood lies more than "
                                   f"{th.ambiguity_radius_steps * step:g} m away "
                                   f"(score ratio {ev.ambiguity_ratio:.2f}): another place fits almost as well")
-    limit_m = th.max_sigma_steps * step if ev.mode == "heading" else min(th.max_sigma_steps * step, th.max_sigma_m)
-    if ev.sigma_m > limit_m:
-        return STATUS_AMBIGUOUS, (f"position poorly constrained (1-sigma {ev.sigma_m:.1f} m "
-                                  f"> {limit_m:g} m)")
     if ev.on_search_edge:
         # an optimum pinned to the edge of the searched area says the rover is probably beyond it
         what = "database grid" if ev.mode == "lost" else "search window"
         return STATUS_AMBIGUOUS, (f"the best match lies on the edge of the {what}: the rover is probably "
                                   "outside it" + (" (widen --radius)" if ev.mode != "lost" else ""))
+    limit_m = th.max_sigma_steps * step if ev.mode == "heading" else min(th.max_sigma_steps * step, th.max_sigma_m)
+    if ev.sigma_m > limit_m:
+        return STATUS_AMBIGUOUS, (f"position poorly constrained (1-sigma {ev.sigma_m:.1f} m "
+                                  f"> {limit_m:g} m)")
     if ev.sigma_heading_deg > th.max_sigma_heading_deg:
         return STATUS_AMBIGUOUS, f"heading poorly constrained (1-sigma {ev.sigma_heading_deg:.1f} deg)"
     return STATUS_OK, ""
