@@ -350,25 +350,14 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
 
     seen_pair = seen[1:] & seen[:-1]
-    feats = [blur, tex]
-    floors = [0.01, 0.05]
-    step_features = [0]
-    if chroma is not None:
-        feats.append(chroma)
-        floors.append(0.01)
-        step_features.append(2)
+    feats, floors, step_features = _feature_stack(blur, tex, chroma)
     line = None
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
         p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
                               caps=[None, P.smooth_evidence_cap, None][:len(feats)],
                               broaden=P.ground_broadening if it > 0 else 0.0)
-        # sky probability, in place: 1 / (1 + exp(-llr))
-        np.clip(p, -20.0, 20.0, out=p)
-        np.negative(p, out=p)
-        np.exp(p, out=p)
-        p += 1.0
-        np.reciprocal(p, out=p)
+        _sky_probability(p)
         mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
         if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
             diag.update(reason="one class only", intensity_sky=glob_s[0], intensity_ground=glob_g[0])
@@ -408,27 +397,64 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    istep = np.zeros((H, W), dtype=np.float32)
-    np.subtract(blur[1:], blur[:-1], out=istep[1:])
-    istep[1:] *= seen_pair
-    istep *= polarity[None, :]
-    y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
-    del istep
-    colour_proj = _discriminant(feats, stats, [2])[0] if chroma is not None and P.colour_step_above else None
-    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj)
-    del colour_proj
-    valid = conf >= P.min_confidence
-    valid &= n_seen_col > 0
-    # grow only the masked runs that are long enough to have dragged the smooth path off the line
-    long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
-    valid &= _grow_mask(long_bad, P.mask_margin_columns, wrap)
-    valid = _drop_short_runs(valid, P.min_run_columns, wrap)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, P)
+    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    valid = _valid_columns(conf, n_seen_col, wrap, P)
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
     diag["valid_fraction"] = float(valid.mean())
     return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+
+
+def _feature_stack(blur: np.ndarray, tex: np.ndarray, chroma: np.ndarray | None
+                   ) -> tuple[list[np.ndarray], list[float], list[int]]:
+    """(features, their spread floors, the indices of the smooth ones the edge is measured on): blurred
+    intensity and log texture, plus chroma for colour images."""
+    if chroma is None:
+        return [blur, tex], [0.01, 0.05], [0]
+    return [blur, tex, chroma], [0.01, 0.05, 0.01], [0, 2]
+
+
+def _sky_probability(llr: np.ndarray) -> np.ndarray:
+    """``1 / (1 + exp(-llr))`` in place (``llr`` clipped to +-20 first); returns the same array."""
+    np.clip(llr, -20.0, 20.0, out=llr)
+    np.negative(llr, out=llr)
+    np.exp(llr, out=llr)
+    llr += 1.0
+    np.reciprocal(llr, out=llr)
+    return llr
+
+
+def _subpixel_line(blur: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
+                   polarity: np.ndarray, sep_col: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """Sub-pixel line per column (rows) from the intensity step (``polarity``: sky -> ground sign) where
+    intensity separates the classes (colour edges shift with lens dispersion), from the discriminant's
+    step ``diff`` elsewhere."""
+    istep = np.zeros(blur.shape, dtype=np.float32)
+    np.subtract(blur[1:], blur[:-1], out=istep[1:])
+    istep[1:] *= seen_pair
+    istep *= polarity[None, :]
+    return np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
+
+
+def _colour_projection(feats: list[np.ndarray], stats: list, chroma: np.ndarray | None,
+                       P: DetectorParams) -> np.ndarray | None:
+    """The colour feature alone scaled sky 0 / ground 1 (for the colour step-above check), or None."""
+    if chroma is None or not P.colour_step_above:
+        return None
+    return _discriminant(feats, stats, [2])[0]
+
+
+def _valid_columns(conf: np.ndarray, n_seen_col: np.ndarray, wrap: bool, P: DetectorParams) -> np.ndarray:
+    """Columns kept: confident and seen; masked runs long enough to have dragged the smooth path off the
+    line grown by ``P.mask_margin_columns``; kept runs shorter than ``P.min_run_columns`` dropped."""
+    valid = conf >= P.min_confidence
+    valid &= n_seen_col > 0
+    long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
+    valid &= _grow_mask(long_bad, P.mask_margin_columns, wrap)
+    return _drop_short_runs(valid, P.min_run_columns, wrap)
 
 
 def _node_cost(p: np.ndarray, proj: np.ndarray, seen: np.ndarray, seen_pair: np.ndarray, P: DetectorParams
@@ -537,13 +563,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     del rows
     grey, blur, tex, chroma = (None if a is None else a[M:-M] for a in _vertical_features(band, P))
     del band
-    feats = [blur, tex]
-    floors = [0.01, 0.05]
-    step_features = [0]
-    if chroma is not None:
-        feats.append(chroma)
-        floors.append(0.01)
-        step_features.append(2)
+    feats, floors, step_features = _feature_stack(blur, tex, chroma)
     sky_cls, ground_cls = _bands_from_line(guide - off, Hb, P.refit_margin_px + f, P.sky_band_px)
     sky_cls &= bseen
     ground_cls &= bseen
@@ -553,11 +573,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
                           caps=[None, P.smooth_evidence_cap, None][:len(feats)], broaden=P.ground_broadening)
     del sky_cls, ground_cls
-    np.clip(p, -20.0, 20.0, out=p)
-    np.negative(p, out=p)
-    np.exp(p, out=p)
-    p += 1.0
-    np.reciprocal(p, out=p)
+    _sky_probability(p)
     mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
     if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
         return _empty(W, diag | {"reason": "one class only"})
@@ -569,20 +585,11 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
                          offsets=off).rows_top
     del node
     sep_col = np.abs(mu_g - mu_s) / np.hypot(sd_s, sd_g)
-    istep = np.zeros((Hb, W), dtype=np.float32)
-    np.subtract(blur[1:], blur[:-1], out=istep[1:])
-    istep[1:] *= seen_pair
-    istep *= polarity[None, :]
-    y = np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
-    del istep, diff
-    colour_proj = _discriminant(feats, stats, [2])[0] if chroma is not None and P.colour_step_above else None
-    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj), conf_c)
-    del colour_proj
-    valid = conf >= P.min_confidence
-    valid &= n_seen_col > 0
-    long_bad = ~_drop_short_runs(~valid, P.min_run_columns, wrap)
-    valid &= _grow_mask(long_bad, P.mask_margin_columns, wrap)
-    valid = _drop_short_runs(valid, P.min_run_columns, wrap)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, P)
+    del diff
+    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
+                                  _colour_projection(feats, stats, chroma, P)), conf_c)
+    valid = _valid_columns(conf, n_seen_col, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
     diag["refined_shift_px_median"] = float(np.median(np.abs(y - guide)))
