@@ -29,7 +29,7 @@ import os
 import shutil
 import sys
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Iterator
 
@@ -123,8 +123,13 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
                 tmp_dir = tempfile.mkdtemp(prefix="skyloc-dask-tls-")  # mode 0700
             security = generate_tls_files(Path(tls_dir or tmp_dir)).security()
         try:
-            with _http_config(dashboard), _dashboard_gate(dashboard_token if dashboard else None), \
-                    _without_blender_paths():
+            if dashboard:
+                from render_service.dashboard_auth import gated_dashboard  # noqa: PLC0415
+
+                gate = gated_dashboard(dashboard_token)
+            else:
+                gate = nullcontext()
+            with _http_config(dashboard), gate, _without_blender_paths():
                 cluster = LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                                        processes=processes, host="127.0.0.1", scheduler_port=0, protocol="tls://",
                                        security=security, dashboard_address=dashboard, worker_dashboard_address=None,
@@ -154,18 +159,6 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2, threads_per
             log.warning("closing Dask: %s", exc)
         if tmp_dir is not None:
             shutil.rmtree(tmp_dir, ignore_errors=True)
-
-
-@contextmanager
-def _dashboard_gate(token: str | None) -> Iterator[None]:
-    """Servers started inside build their HTTP app behind ``token`` (nothing changes when None)."""
-    if token is None:
-        yield
-        return
-    from render_service.dashboard_auth import gated_dashboard  # noqa: PLC0415
-
-    with gated_dashboard(token):
-        yield
 
 
 @contextmanager
