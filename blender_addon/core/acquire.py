@@ -3,18 +3,10 @@
 :class:`Pose` (the rover pose to simulate, the one pose type of the simulator), :class:`AcquisitionJob`
 (everything that defines one acquisition), the per-frame random streams, the pose checks, the
 simulation metadata and the acquisition folder written from rendered images.  The Blender side that
-renders the frames is :class:`blender_addon.sim.Simulator` (the add-on's bpy layer), which calls these:
-
-    sim = Simulator("procedural:mars:7", site_xy=(0.0, 0.0), grid_half_m=300)
-    sim.acquire(AcquisitionJob(Pose(10, 20, heading_deg=45), get_preset("exomars"),
-                               plan_frames(13, 360, 65), get_degradation("realistic"), seed=1), "out/acq")
-
-Geometry: the optical centre is ``mast_height_m`` above the ground at (x, y), whatever the
-pitch and roll (the skyline database's model); pitch and roll rotate the camera about it.
-Each frame is rendered as an ideal pinhole slightly larger than the camera
-(:func:`blender_addon.core.degrade.render_camera_for`), then distorted, dispersed and made
-noisy in numpy.  Ground truth and the degradation parameters go into the manifest
-(:mod:`board.acquisition`); the calibrated camera carries the Brown-Conrady coefficients.
+renders the frames is :class:`blender_addon.sim.Simulator` (the add-on's bpy layer), which calls these;
+its docstring has the usage and the frame geometry.  Ground truth and the degradation parameters go
+into the manifest (:mod:`board.acquisition`); the calibrated camera carries the Brown-Conrady
+coefficients.
 """
 from __future__ import annotations
 
