@@ -21,12 +21,5 @@ classes = (
     SKYLOC_OT_render_database,
 )
 
-
-def register() -> None:
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+#: register in order, unregister in reverse (Blender's own helper)
+register, unregister = bpy.utils.register_classes_factory(classes)

@@ -131,12 +131,5 @@ class SKYLOC_OT_descent_render_pair(bpy.types.Operator):
 
 classes = (SKYLOC_OT_descent_build, SKYLOC_OT_descent_place, SKYLOC_OT_descent_render_pair)
 
-
-def register() -> None:
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+#: register in order, unregister in reverse (Blender's own helper)
+register, unregister = bpy.utils.register_classes_factory(classes)
