@@ -81,6 +81,10 @@ class DetectorParams:
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
+    local_grey_step: float = 0.5        # the line is placed on the grey step where it is this share of the class
+                                        # contrast at least (else on the discriminant's)
+    quantisation_texture_levels: float = 1.5  # roughness below this many grey levels of an integer image is
+                                              # quantisation of a smooth gradient, not texture
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
@@ -397,7 +401,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, P)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, np.abs(mu_g - mu_s), P)
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     first_seen = np.argmax(seen, axis=0)
@@ -428,15 +432,25 @@ def _sky_probability(llr: np.ndarray) -> np.ndarray:
 
 
 def _subpixel_line(blur: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
-                   polarity: np.ndarray, sep_col: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """Sub-pixel line per column (rows) from the intensity step (``polarity``: sky -> ground sign) where
-    intensity separates the classes (colour edges shift with lens dispersion), from the discriminant's
-    step ``diff`` elsewhere."""
+                   polarity: np.ndarray, sep_col: np.ndarray, contrast: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """Sub-pixel line per column (rows) from the intensity step where intensity separates the classes and
+    the grey level steps at the line by at least ``P.local_grey_step`` of the class ``contrast`` (colour
+    edges shift with lens dispersion), from the discriminant's step ``diff`` elsewhere.  The step's sign is
+    the local one (``polarity``, the classes' sky -> ground sign, where the grey level is flat)."""
+    # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
+    # the horizon brighter than the ground while the sky as a whole is darker)
+    w = P.contrast_window_px
+    sf = seen_pair.astype(np.float32)
+    above, _ = _window_mean(blur[:-1], sf, b - 1, -w + 1, 1)
+    below, _ = _window_mean(blur[1:], sf, b - 1, 1, w + 1)
+    local = np.nan_to_num(below - above)
+    polarity = np.where(local != 0, np.sign(local), polarity).astype(np.float32)
     istep = np.zeros(blur.shape, dtype=np.float32)
     np.subtract(blur[1:], blur[:-1], out=istep[1:])
     istep[1:] *= seen_pair
     istep *= polarity[None, :]
-    return np.where(sep_col >= P.intensity_subpixel_separation, _subpixel(istep, b), _subpixel(diff, b))
+    on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
+    return np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
 
 
 def _colour_projection(feats: list[np.ndarray], stats: list, chroma: np.ndarray | None,
@@ -496,19 +510,29 @@ def _vertical_features(image: np.ndarray, P: DetectorParams
     (vertical-only blur: a horizontal one would smear steep slopes into ramps and bias the line)."""
     import cv2
 
-    grey, _ = to_grey01(image)
+    grey, full = to_grey01(image)
     if P.blur_sigma_px > 0:
         k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
         blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     else:
         blur = grey
     tex = _texture(grey, P.texture_window_px)
+    # an integer image's smooth gradient (a haze band brightening to the horizon) steps one level every
+    # few rows: its second differences of +-1 level are quantisation, not texture.  Below the floor all
+    # roughness is alike (a clean sky rendered to 8 bits is not rougher where its gradient is steeper)
+    np.maximum(tex, np.float32(texture_floor(full, P)), out=tex)
     tex += 1e-3
     np.log(tex, out=tex)
     chroma = _chroma(image) if P.use_colour else None
     if chroma is not None and P.blur_sigma_px > 0:
         chroma = cv2.sepFilter2D(chroma, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     return grey, blur, tex, chroma
+
+
+def texture_floor(full_scale: float, P: DetectorParams) -> float:
+    """Roughness (fraction of full scale) below which a texture is quantisation: ``P.quantisation_texture_levels``
+    grey levels of an integer image (``full_scale`` 255 or 65535), 0 for a float image (``full_scale`` 1)."""
+    return P.quantisation_texture_levels / full_scale if full_scale > 1.0 else 0.0
 
 
 def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool, P: DetectorParams) -> Detection:
@@ -585,7 +609,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
                          offsets=off).rows_top
     del node
     sep_col = np.abs(mu_g - mu_s) / np.hypot(sd_s, sd_g)
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, P)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, np.abs(mu_g - mu_s), P)
     del diff
     conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
                                   _colour_projection(feats, stats, chroma, P)), conf_c)

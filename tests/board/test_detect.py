@@ -3,6 +3,7 @@ independent shortest-path implementations."""
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -345,8 +346,49 @@ def test_sunlit_strip_brighter_than_the_sky_above_a_shaded_slope_is_ground(param
     assert np.all(np.abs(det.line_row[kept] - far[kept]) <= 3.0)   # the lower step is 10-18 rows down
     assert det.valid[~sector].mean() >= 0.9
     assert np.nanmean(np.abs(det.line_row[~sector] - far[~sector])) <= 1.0
-    from dataclasses import replace
-
-    unchecked = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_step_above=False))
+    # the control, on the direct detector (coarse to fine, the line now stays up but is masked there without it)
+    unchecked = detect_skyline(_u8(img), wrap=True, params=replace(DIRECT, colour_step_above=False))
     wrong = unchecked.valid & sector & (np.abs(unchecked.raw_row - far) > 6)
     assert wrong.sum() >= 10  # without the colour-only check the line follows the lower step, kept
+
+
+def test_line_on_the_local_grey_step_under_a_haze_band(params):
+    """A noise-free sky brightening towards the horizon (haze), in 8 bits, over sunlit ground: the sky as a
+    whole is darker than the ground, the sky just above the line as bright as it.  The sub-pixel line must
+    use the step's local sign and size (before: the classes' sign, 1.3-1.6 px off on this scene)."""
+    f = SkylineFunction.random(31)
+    rows = _truth_rows(f)
+    rng = np.random.default_rng(6)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None]                                         # pixel centres (the line's rows)
+    depth = np.clip(rows[None, :] - r, 0, None)                       # rows above the skyline
+    sky = np.array([0.54, 0.48, 0.44])[None, None, :] * (1.0 + 0.25 * np.exp(-depth / 12.0))[..., None]
+    ground = np.array([0.45, 0.56, 0.68]) + 0.02 * rng.standard_normal((H, W, 1))
+    cover = np.clip(r + 0.5 - rows[None, :], 0.0, 1.0)[..., None]    # ground share of each pixel
+    img = cover * ground + (1.0 - cover) * sky
+    det = detect_skyline(_u8(img), wrap=True, params=params)
+    assert det.valid.mean() >= 0.9
+    assert np.nanmean(np.abs(det.line_row - rows)) <= 0.5
+
+
+def test_quantised_smooth_gradient_is_not_texture():
+    """The roughness of an 8-bit smooth gradient (one grey level every few rows) is the flat sky's: below
+    DetectorParams.quantisation_texture_levels grey levels it is quantisation (Mars 402, pose 6, clean look:
+    the haze band above the horizon read as texture, the line ran along its top and 71 % of the columns were
+    masked).  Real texture above the floor is measured as before."""
+    from board.detect.sky_regions import _vertical_features
+
+    H, W = 200, 50
+    r = np.arange(H, dtype=float)[:, None]
+    gradient = np.broadcast_to(0.45 + 0.12 * np.exp(-(H - r) / 30.0), (H, W))   # steepens towards the bottom
+    flat = np.full((H, W), 0.45)
+    rough = 0.45 + 0.02 * np.random.default_rng(1).standard_normal((H, W))
+    P = DetectorParams()
+    tex = {name: _vertical_features(_u8(img), P)[2] for name, img in
+           (("gradient", gradient), ("flat", flat), ("rough", rough))}
+    assert np.ptp(np.diff(_u8(gradient)[:, 0].astype(int))) >= 1               # the gradient does step in 8 bits
+    np.testing.assert_array_equal(tex["gradient"], tex["flat"])
+    assert np.median(tex["rough"]) > np.max(tex["flat"]) + 1.0                   # e-fold rougher: still texture
+    unfloored = replace(P, quantisation_texture_levels=0.0)
+    raw = {name: _vertical_features(_u8(img), unfloored)[2] for name, img in (("gradient", gradient), ("flat", flat))}
+    assert np.max(raw["gradient"]) > np.max(raw["flat"]) + 0.5                   # the control: steps read as texture
