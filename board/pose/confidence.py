@@ -50,6 +50,12 @@ class Thresholds:
         off wrong, so an ``ok`` fix's 25 m must be 3.5 sigma or more (a 29.6 m error with a 8.3 m
         sigma on a 76 m/px lunar DEM was reported ``ok`` with the grid-step rule alone)
     max_sigma_heading_deg : a 1-sigma heading error above this is ``ambiguous``
+    max_ok_rms_deg : a best match with a larger (weighted) RMS residual is at best ``ambiguous``: the
+        covariance assumes the database explains the skyline to the extraction's accuracy (kept samples
+        are 0.04 deg off at the median), and a loose fit is a place the grid does not represent (a cliff
+        metres away) or a skyline partly wrong.  On Mars 402 (30 poses) a fix at 0.38 deg RMS was 7.1 deg
+        off in heading with a 0.85 deg sigma; correct ``ok`` fixes there and on four other sites stayed
+        at or below 0.25 deg.
     """
 
     max_rms_deg: float = 0.75
@@ -58,6 +64,7 @@ class Thresholds:
     max_sigma_steps: float = 3.0
     max_sigma_m: float = 7.0
     max_sigma_heading_deg: float = 2.0
+    max_ok_rms_deg: float = 0.3
 
 
 def effective_samples(residual: np.ndarray) -> float:
@@ -182,7 +189,8 @@ def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
     fix exceeds ``th.max_far_mass``; or the position is pinned to the edge of the searched area (the
     likely cause of a large sigma, so said first); or the position's 1-sigma exceeds
     ``th.max_sigma_steps`` grid steps or (outside heading mode) ``th.max_sigma_m`` metres; or the
-    heading's 1-sigma exceeds ``th.max_sigma_heading_deg``.  The reason says what and the fix where
+    heading's 1-sigma exceeds ``th.max_sigma_heading_deg``; or the RMS residual exceeds ``th.max_ok_rms_deg``
+    (a loose fit: the sigmas assume a model that fits).  The reason says what and the fix where
     there is one.
     """
     step = ev.step_m
@@ -205,4 +213,8 @@ def fix_status(ev: FixEvidence, th: Thresholds) -> tuple[str, str]:
                                   f"> {limit_m:g} m)")
     if ev.sigma_heading_deg > th.max_sigma_heading_deg:
         return STATUS_AMBIGUOUS, f"heading poorly constrained (1-sigma {ev.sigma_heading_deg:.1f} deg)"
+    if ev.rms_deg > th.max_ok_rms_deg:
+        return STATUS_AMBIGUOUS, (f"the skyline fits this place only loosely ({ev.rms_deg:.2f} deg RMS beyond the "
+                                  f"database's interpolation error, > {th.max_ok_rms_deg}): a near horizon the grid "
+                                  "does not resolve, or part of the skyline is wrong; the sigmas may be too small")
     return STATUS_OK, ""

@@ -51,7 +51,22 @@ def test_an_ok_fix_has_a_sigma_that_keeps_a_25m_error_beyond_3_5_sigma():
     (dict(far_mass=0.02), STATUS_AMBIGUOUS),
     (dict(on_search_edge=True), STATUS_AMBIGUOUS),
     (dict(sigma_heading_deg=2.5), STATUS_AMBIGUOUS),
-    (dict(rms_deg=0.74, far_mass=0.009, sigma_m=6.0, sigma_heading_deg=1.9), STATUS_OK),
+    (dict(rms_deg=0.74), STATUS_AMBIGUOUS),
+    (dict(rms_deg=0.31), STATUS_AMBIGUOUS),
+    (dict(rms_deg=0.29, far_mass=0.009, sigma_m=6.0, sigma_heading_deg=1.9), STATUS_OK),
 ])
 def test_each_rule_on_its_side_of_the_limit(kw, status):
     assert fix_status(_ev(**kw), Thresholds())[0] == status
+
+
+def test_a_loose_fit_is_never_ok_and_says_why():
+    """Between the 'failed' limit and the ok limit: a skyline that fits only loosely gives sigmas that assume a
+    model that fits (Mars 402 pose 8: 0.38 deg RMS, heading 7.1 deg off, sigma 0.85)."""
+    th = Thresholds()
+    assert th.max_ok_rms_deg < th.max_rms_deg
+    status, reason = fix_status(_ev(rms_deg=0.38), th)
+    assert status == STATUS_AMBIGUOUS and "0.38 deg RMS" in reason and "loosely" in reason
+    # the failed rule still comes first, and the other ambiguous reasons are said before this one
+    assert fix_status(_ev(rms_deg=0.8), th)[0] == STATUS_FAILED
+    assert "heading poorly constrained" in fix_status(_ev(rms_deg=0.38, sigma_heading_deg=2.5), th)[1]
+    assert fix_status(_ev(rms_deg=0.38), Thresholds(max_ok_rms_deg=0.75))[0] == STATUS_OK
