@@ -130,8 +130,8 @@ def test_tilted_mast(site):
 
 def test_near_rocks_do_not_give_wrong_columns(site):
     # five boulders of 2-3 m within 4 m of the mast.  Their outline is kept when it is the sky/ground
-    # boundary (near-rock flagging is not implemented, docs/extraction.md); where they stand below the
-    # horizon, as here, they must not pull the line off it.
+    # boundary (the fix then flags it as above the DEM's skyline: tests/board/test_locate_robust.py);
+    # where they stand below the horizon, as here, they must not pull the line off it.
     rocks = RockParams(density_per_m2=0.0, near_count=5, near_distance_m=(2.5, 4.0), near_diameter_m=(2.0, 3.0))
     deg = replace(degrade.get_degradation("realistic"), rocks=rocks)
     _check(*_render(site, "rocks", _case("realistic", seed=8), degradation=deg), min_kept=0.7)
