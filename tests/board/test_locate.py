@@ -37,7 +37,13 @@ def test_lost_in_space_full_panorama_with_tilt(raymarch_world, pitch, roll):
     h = rng.uniform(0, 360)
     fix = locate(w.db, w.query(x, y, heading=h, pitch=pitch, roll=roll, noise=0.05, rng=rng))
     d, dh = _err(fix, x, y, h)
-    assert fix.status == "ok", fix.reason
+    if (pitch, roll) == (0, 10):
+        # this pose's best fit leaves 0.48 deg RMS even for a noise-free query (1.2 deg at the true pose:
+        # the interpolated database does not explain this rolled view here), so the fix, 2.3 m off, is
+        # not vouched for: a loose fit is never ok (Thresholds.max_ok_rms_deg)
+        assert fix.status == "ambiguous" and "loosely" in fix.reason, fix.reason
+    else:
+        assert fix.status == "ok", fix.reason
     assert d <= 5.0 and dh <= 1.0
     assert abs(fix.pitch_deg - pitch) <= 1.5 and abs(fix.roll_deg - roll) <= 1.5
 
