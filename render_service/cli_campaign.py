@@ -52,21 +52,34 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
     or when cases crashed the harness (running the same command again retries them).
     """
     from render_service.campaign import CampaignOptions, run_campaign  # noqa: PLC0415
-    from render_service.campaign.profiles import parse_setting  # noqa: PLC0415
     from render_service.engine import security_from_files  # noqa: PLC0415
 
     security = None
     if check_tls_options(scheduler, tls_ca_file, tls_cert, tls_key):
         security = security_from_files(ca_file=tls_ca_file, cert_file=tls_cert, key_file=tls_key)
-    overrides = dict(parse_setting(s) for s in settings)
-    overrides |= {"n_poses": poses, "n_acquisitions": acquisitions, "pano_width": pano_width, "samples": samples}
-    if poses is not None:
-        overrides.update({"n_window_poses": poses, "n_heading_poses": poses})
+    overrides = profile_overrides(settings, poses=poses, acquisitions=acquisitions, pano_width=pano_width,
+                                  samples=samples)
     run_campaign(CampaignOptions(out=out, dem=dem, profile=profile_name, seed=seed, scheduler=scheduler,
                                  workers=workers, body=body, min_relief_deg=min_relief_deg,
-                                 overrides={k: v for k, v in overrides.items() if v is not None},
+                                 overrides=overrides,
                                  progress=not no_progress, security=security))
     click.echo(f"results: {out / 'results.csv'}, {out / 'summary.json'}, {out / 'report.html'}")
+
+
+def profile_overrides(settings, *, poses: int | None, acquisitions: int | None, pano_width: int | None,
+                      samples: int | None) -> dict:
+    """The profile fields the command line sets: every ``--set FIELD=VALUE``, then the dedicated options given
+    (None: not given).  ``--poses`` also sets how many poses tables 7 and 8 use, unless ``--set`` names them
+    (``--poses 30 --set n_window_poses=1`` runs the window table at one pose)."""
+    from render_service.campaign.profiles import parse_setting  # noqa: PLC0415
+
+    overrides = dict(parse_setting(s) for s in settings)
+    overrides |= {k: v for k, v in {"n_poses": poses, "n_acquisitions": acquisitions, "pano_width": pano_width,
+                                    "samples": samples}.items() if v is not None}
+    if poses is not None:
+        for k in ("n_window_poses", "n_heading_poses"):
+            overrides.setdefault(k, poses)
+    return overrides
 
 
 def register(group: click.Group) -> None:

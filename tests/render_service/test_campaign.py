@@ -306,3 +306,17 @@ def test_resuming_with_other_arguments_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match="seed differ"):
         _check_arguments(out, {"seed": 2, "dem": "x"})
     assert CampaignOptions(out=out).profile == "ci"
+
+
+def test_poses_option_leaves_the_tables_7_and_8_counts_that_set_names():
+    """``--poses 30 --set n_window_poses=1`` ran the window table at 30 poses: --poses overrode the --set."""
+    from render_service.cli_campaign import profile_overrides
+
+    kw = dict(acquisitions=None, pano_width=None, samples=None)
+    o = profile_overrides(["n_window_poses=1"], poses=30, **kw)
+    assert o["n_poses"] == 30 and o["n_window_poses"] == 1 and o["n_heading_poses"] == 30
+    assert get_profile("report", **o).n_window_poses == 1
+    o = profile_overrides([], poses=None, **kw)
+    assert o == {}
+    o = profile_overrides(["n_heading_poses=0", "samples=8"], poses=5, acquisitions=2, pano_width=None, samples=None)
+    assert (o["n_heading_poses"], o["n_window_poses"], o["n_acquisitions"], o["samples"]) == (0, 5, 2, 8)
