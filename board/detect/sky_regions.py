@@ -401,7 +401,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, np.abs(mu_g - mu_s), P)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     first_seen = np.argmax(seen, axis=0)
@@ -608,8 +608,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     b = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
                          offsets=off).rows_top
     del node
-    sep_col = np.abs(mu_g - mu_s) / np.hypot(sd_s, sd_g)
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, np.abs(mu_g - mu_s), P)
+    contrast = np.abs(mu_g - mu_s)
+    sep_col = contrast / np.hypot(sd_s, sd_g)
+    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
     del diff
     conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
                                   _colour_projection(feats, stats, chroma, P)), conf_c)
