@@ -42,3 +42,32 @@ def seen_or_all(seen: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
     if seen.shape != shape:
         raise InvalidInputError(f"seen mask shape {seen.shape} differs from the image {shape}")
     return seen
+
+
+def fill_unseen_rows(image: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """The image with every unseen pixel replaced by the nearest seen pixel of its column (above or below).
+
+    The detector's features (vertical blur, second differences, colour) are computed over a few rows;
+    at the top and bottom of a panorama built from frames, the unseen pixels next to the seen ones are
+    black, and a sky blurred with black reads as a dark band: a "sky-to-ground step" above the line,
+    or texture.  Filled, the seen pixels next to the border are as if the image went on (replicated
+    border, per column).  The unseen pixels are still no evidence: ``seen`` is used as before.
+    Columns with nothing seen are left as they are.  Returns ``image`` itself when all is seen.
+    """
+    img = np.asarray(image)
+    seen = np.asarray(seen, dtype=bool)
+    if seen.all():
+        return img
+    H, W = seen.shape
+    rows = np.arange(H, dtype=np.int32)[:, None]
+    above = np.where(seen, rows, np.int32(-1))
+    np.maximum.accumulate(above, axis=0, out=above)       # last seen row at or above, -1 if none
+    below = np.where(seen, rows, np.int32(H))
+    below = np.minimum.accumulate(below[::-1], axis=0)[::-1]  # first seen row at or below, H if none
+    use_below = (above < 0) | ((below < H) & (below - rows < rows - above))
+    src = np.where(use_below, below, above)
+    del above, below, use_below
+    empty = ~seen.any(axis=0)
+    src[:, empty] = rows                                  # nothing seen: the column as it is
+    np.clip(src, 0, H - 1, out=src)
+    return img[src, np.arange(W)[None, :]]

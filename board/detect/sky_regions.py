@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from board.detect.graph_dp import shortest_path_l1
-from board.detect.preprocess import seen_or_all, to_grey01
+from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -86,6 +86,10 @@ class DetectorParams:
     quantisation_texture_levels: float = 1.5  # roughness below this many grey levels of an integer image is
                                               # quantisation of a smooth gradient, not texture
     min_noise: float = 0.03             # floor of the sky spread on the discriminant (units of the class contrast)
+    sky_colour_min_contrast: float = 0.08   # the view's sky and ground differ by this much in log(blue / red) at
+                                            # least for the "sky coloured like the ground" check to run
+    sky_colour_ramp: tuple[float, float] = (0.25, 0.5)  # a column's sky window this share of the way from the
+                                            # ground's colour to the view's sky colour: confidence 0 -> 1
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
 
@@ -294,6 +298,9 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     if img.ndim not in (2, 3):
         raise InvalidInputError(f"an image is (H, W) or (H, W, 3), got shape {img.shape}")
     H, W = img.shape[:2]
+    if seen is not None:
+        # the features look a few rows across: the seen border must not see the black beyond it
+        img = fill_unseen_rows(img, seen_or_all(seen, (H, W)))
     n = params.max_direct_pixels
     if n > 0 and H * W > n and min(H, W) >= 128:
         return _detect_coarse_to_fine(img, seen, wrap, params)
@@ -403,6 +410,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     # shift with lens dispersion), from the discriminant elsewhere
     y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    if chroma is not None:
+        c_colour, diag["sky_ground_colour_contrast"] = _sky_colour_unlike_ground(chroma, seen, b, P)
+        np.minimum(conf, c_colour, out=conf)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
@@ -745,6 +755,39 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
               "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
               np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5))
     return np.nan_to_num(conf, nan=0.0)
+
+
+def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
+                              ) -> tuple[np.ndarray, float]:
+    """Per column, 1 where the window above the line has the sky's colour, 0 where it has the ground's.
+
+    Where near slopes fill the top of a view, there is no sky in those columns: the per-sector classes
+    then take the slope for "sky" and the line falls on an edge inside the ground, with full contrast.
+    Colour (log blue / red) hardly depends on the light, and the ground's colour is known from the rows
+    below the line everywhere.  The view's sky colour is the far tail of the columns' "sky" colours
+    (10th or 90th percentile of their offsets from the ground's, the larger): a real sky in a tenth of
+    the view sets it.  A column whose "sky" window is less than ``P.sky_colour_ramp[0]`` of the way from
+    the ground's colour to the sky's gets 0, more than ``[1]`` of the way 1.  Views whose sky and ground
+    differ by less than ``P.sky_colour_min_contrast`` (grey images, a dusty sky the regolith's colour)
+    are not checked (all 1).  Returns the per-column factor and that sky-ground colour offset.
+    """
+    W = b.size
+    R, m = P.region_window_px, P.contrast_window_px
+    sf = seen.astype(np.float32)
+    sky_c, n_s = _window_mean(chroma, sf, b, -R, -m)
+    gr_c, n_g = _window_mean(chroma, sf, b, m, R)
+    ok_g = n_g >= P.min_seen_rows
+    ok_s = n_s >= P.min_seen_rows
+    if ok_g.sum() < 10 or ok_s.sum() < 10:
+        return np.ones(W), 0.0
+    d = sky_c - float(np.median(gr_c[ok_g]))
+    lo, hi = np.percentile(d[ok_s], [10.0, 90.0])
+    offset = float(hi if abs(hi) >= abs(lo) else lo)
+    if abs(offset) < P.sky_colour_min_contrast:
+        return np.ones(W), offset
+    t0, t1 = P.sky_colour_ramp
+    share = np.where(ok_s, d / offset, 1.0)
+    return np.clip((share - t0) / (t1 - t0), 0.0, 1.0), offset
 
 
 def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, float]:

@@ -49,6 +49,8 @@ def robustness_case_task(ctx, case: dict, acq_dir: str, db_path: str) -> dict:
         st.stage = "extract"
         res = extract_from_acquisition(acq_dir, azimuth_step_deg=360.0 / ctx.n_azimuth, azimuth_start_deg=0.0)
         st.extract_status, st.extract_s = res.status, res.elapsed_s
+        if res.panorama is not None:
+            st.view = scoring.view_limits(res.panorama, ctx.n_azimuth)
         if res.skyline is None:
             st.reason = f"extract: {res.reason}"
         else:

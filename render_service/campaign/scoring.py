@@ -6,6 +6,11 @@ true skyline of a panorama is that horizon seen in the mast's frame (tilted like
 acquisition's panorama is levelled with the manifest's attitude, so its true skyline is the level
 one.  Angles in degrees, distances in metres.
 
+Only the azimuths whose true horizon lies inside the picture are *seen* (:func:`view_limits`): a
+NavCam acquisition's frames end some 30 degrees up, and a slope next to the rover can rise above
+that.  A line kept where the horizon is out of the picture is wrong by definition: it counts among
+the kept samples and among those more than 1 degree off (``kept_hidden_deg`` says how many).
+
 A fix is *wrong* when it is more than ``WRONG_M`` (25 m) or ``WRONG_HEADING_DEG`` (2 degrees) off;
 a wrong fix should never be ``ok`` and a right one should be.
 """
@@ -32,8 +37,13 @@ COLUMNS = (
     "pose", "kind", "fix_pitch_deg", "fix_roll_deg", "prior_offset_m", "heading_prior_deg", "render_s", "case_s",
     "true_relief_deg", "off_grid_steps", "kept_deg", "kept_fraction", "extract_median_abs_err_deg",
     "extract_p90_abs_err_deg", "extract_frac_gt1deg", "ellipse95_major_m", "wrong", "wrong_ok", "right_flagged",
-    "picture_error", "look",
+    "picture_error", "look", "kept_hidden_deg",
 )
+
+#: the true horizon is "in the picture" at an azimuth when it lies this many panorama rows inside the seen
+#: rows at least (the detector needs a few rows of sky and of ground); closer to the edge it is neither
+#: counted as seen nor as hidden
+VIEW_MARGIN_ROWS = 3
 def _look_name(preset: str, body: str) -> str:
     """The name of the look rendered for ``preset`` on ``body`` (e.g. realistic -> realistic-moon)."""
     from blender_addon.core.degrade import look_on_body  # noqa: PLC0415
@@ -69,6 +79,7 @@ class CaseOutcome:
     prior: tuple = field(default_factory=tuple)
     heading_prior_deg: float = float("nan")
     picture_error: str = ""
+    view: tuple | None = None   # (top, bottom, margin) of the picture per skyline azimuth, see view_limits
 
 
 def true_skyline(truth_el: np.ndarray, *, heading_deg: float, pitch_deg: float, roll_deg: float,
@@ -80,19 +91,59 @@ def true_skyline(truth_el: np.ndarray, *, heading_deg: float, pitch_deg: float, 
     return observe(az, truth_el, heading_deg=heading_deg, pitch_deg=pitch_deg, roll_deg=roll_deg, n=n_azimuth)
 
 
-def extraction_errors(extracted: np.ndarray, truth: np.ndarray, step_deg: float) -> dict:
-    """Kept arc, its share of the seen arc and the errors of the kept samples against the truth."""
-    seen = np.isfinite(truth)
+def view_limits(pano, n_azimuth: int, azimuth_start_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where a panorama saw, on a skyline's azimuth grid: per azimuth (``n_azimuth`` samples from
+    ``azimuth_start_deg``, the panorama's azimuth reference), the elevations of the highest and the lowest
+    seen row (degrees, NaN where the column saw nothing), and the margin (degrees) of
+    ``VIEW_MARGIN_ROWS`` rows."""
+    g = pano.geometry
+    seen = (np.ones((g.height, g.width), dtype=bool) if pano.seen is None
+            else np.asarray(pano.seen, dtype=bool))
+    any_seen = seen.any(axis=0)
+    first = np.argmax(seen, axis=0)
+    last = seen.shape[0] - 1 - np.argmax(seen[::-1], axis=0)
+    top = np.where(any_seen, g.el_of_row(first), np.nan)
+    bottom = np.where(any_seen, g.el_of_row(last), np.nan)
+    az = azimuth_start_deg + np.arange(n_azimuth) * 360.0 / n_azimuth
+    col = np.rint(g.col_of_az(az)).astype(np.int64)
+    if g.is_full_circle:
+        col %= g.width
+    inside = (col >= 0) & (col < g.width)
+    col = np.clip(col, 0, g.width - 1)
+    return (np.where(inside, top[col], np.nan), np.where(inside, bottom[col], np.nan),
+            VIEW_MARGIN_ROWS * g.elevation_step_deg)
+
+
+def extraction_errors(extracted: np.ndarray, truth: np.ndarray, step_deg: float, view: tuple | None = None) -> dict:
+    """Kept arc, its share of the seen arc and the errors of the kept samples against the truth.
+
+    view : ``(top, bottom, margin)`` from :func:`view_limits`, or None (every azimuth with a true horizon seen).
+    With it, an azimuth is seen where the truth lies ``margin`` inside [bottom, top], hidden where it lies
+    outside (or the column saw nothing); a sample kept where the horizon is hidden counts as kept and
+    more than 1 degree off (``n_kept_hidden``)."""
+    has = np.isfinite(truth)
+    if view is None:
+        seen, hidden = has, np.zeros_like(has)
+    else:
+        top, bottom, margin = view
+        with np.errstate(invalid="ignore"):
+            seen = has & (truth <= top - margin) & (truth >= bottom + margin)
+            hidden = has & ~((truth <= top) & (truth >= bottom))   # NaN limits (nothing seen): hidden
     kept = np.isfinite(extracted) & seen
+    kept_hidden = np.isfinite(extracted) & hidden
     err = np.abs(extracted[kept] - truth[kept])
+    n_bad = int((err > 1.0).sum() + kept_hidden.sum())
+    n_all = int(kept.sum() + kept_hidden.sum())
     return {
         "kept_deg": float(kept.sum() * step_deg),
         "kept_fraction": float(kept.sum() / max(int(seen.sum()), 1)),
         "extract_median_abs_err_deg": float(np.median(err)) if err.size else float("nan"),
         "extract_p90_abs_err_deg": float(np.percentile(err, 90)) if err.size else float("nan"),
-        "extract_frac_gt1deg": float(np.mean(err > 1.0)) if err.size else float("nan"),
-        "n_kept": int(kept.sum()),
-        "n_gt1deg": int((err > 1.0).sum()),
+        "extract_frac_gt1deg": float(n_bad / n_all) if n_all else float("nan"),
+        "n_kept": n_all,
+        "n_gt1deg": n_bad,
+        "n_kept_hidden": int(kept_hidden.sum()),
+        "kept_hidden_deg": float(kept_hidden.sum() * step_deg),
     }
 
 
@@ -137,7 +188,7 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
             tp, tr = (0.0, 0.0) if st.levelled else (st.pitch_deg, st.roll_deg)
             truth = true_skyline(truth_el, heading_deg=cd["heading_deg"], pitch_deg=tp, roll_deg=tr,
                                  n_azimuth=sky.n)
-            ex = extraction_errors(sky.elevation_deg, truth, sky.azimuth_step_deg)
+            ex = extraction_errors(sky.elevation_deg, truth, sky.azimuth_step_deg, st.view)
             row.update({k: _r(v) for k, v in ex.items() if k in COLUMNS})
             row["n_kept"], row["n_gt1deg"] = ex["n_kept"], ex["n_gt1deg"]
     fix = st.fix

@@ -214,6 +214,7 @@ def case_task(ctx: CampaignContext, case: dict, cand: dict, truth_el: np.ndarray
 def _run_case(ctx: CampaignContext, case: dict, cand: dict, folder: Path, st) -> None:
     from board.extraction import extract_from_acquisition, extract_from_panorama  # noqa: PLC0415
     from board.skyline import Skyline  # noqa: PLC0415
+    from render_service.campaign import scoring  # noqa: PLC0415
     from render_service.campaign.planning import Candidate, Case, prior_of, tilt_of  # noqa: PLC0415
     from render_service.campaign.profiles import Profile  # noqa: PLC0415
 
@@ -236,6 +237,8 @@ def _run_case(ctx: CampaignContext, case: dict, cand: dict, folder: Path, st) ->
             res = extract_from_acquisition(product, azimuth_step_deg=360.0 / ctx.n_azimuth, azimuth_start_deg=0.0)
         st.extract_status, st.extract_s = res.status, res.elapsed_s
         st.levelled = kind == "acquisition"
+        if res.panorama is not None:
+            st.view = scoring.view_limits(res.panorama, ctx.n_azimuth)
         if res.skyline is None:
             st.reason = f"extract: {res.reason}"
             return

@@ -392,3 +392,49 @@ def test_quantised_smooth_gradient_is_not_texture():
     unfloored = replace(P, quantisation_texture_levels=0.0)
     raw = {name: _vertical_features(_u8(img), unfloored)[2] for name, img in (("gradient", gradient), ("flat", flat))}
     assert np.max(raw["gradient"]) > np.max(raw["flat"]) + 0.5                   # the control: steps read as texture
+
+
+def _slope_filling_the_top(sector, *, sky, ground, slope=(0.50, 0.60, 0.74), seed=0):
+    """(H, W, 3) float BGR image and truth rows: a bluish sky over tan ground, except in ``sector`` (a column
+    mask) where a darker near slope of about the ground's colour (``slope``, shaded) fills the view up to its
+    top (the horizon is above the picture) and meets the flat foreground at a foot 4-6 deg below the
+    horizontal."""
+    f = SkylineFunction.random(seed + 61)
+    rows = _truth_rows(f)
+    rng = np.random.default_rng(seed)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None] + 0.5
+    cols = np.arange(W)
+    foot = GEOM.row_of_el(-5.0 + np.sin(cols / 25.0))
+    sky_img = np.asarray(sky, float) * (1.0 + 0.1 * (r / H))[..., None]
+    tex = 0.03 * rng.standard_normal((H, W, 1))
+    ground_img = np.asarray(ground, float) + tex
+    slope_img = 0.8 * np.asarray(slope, float) + 0.5 * tex
+    is_ground = np.where(sector[None, :], r >= foot[None, :], r >= rows[None, :])
+    img = np.where(is_ground[..., None], ground_img, np.where(sector[None, :, None], slope_img, sky_img))
+    return np.clip(img + 0.004 * rng.standard_normal(img.shape), 0, 1), rows, foot
+
+
+def test_no_line_where_a_slope_of_the_grounds_colour_fills_the_top_of_the_view(params):
+    """Near slopes fill the top of a NavCam view in some directions (held-out Baltoro: 5-14 % of the kept
+    samples more than 1 deg off).  There is no sky in those columns: the per-sector classes take the slope for
+    sky and the line falls on its foot, with full contrast.  The slope has the ground's colour, the sky
+    elsewhere in the view another one: those columns are masked, the rest kept."""
+    cols = np.arange(GEOM.width)
+    sector = (cols > 300) & (cols < 620)
+    img, rows, foot = _slope_filling_the_top(sector, sky=(0.70, 0.62, 0.55), ground=(0.45, 0.60, 0.78))
+    det = detect_skyline(_u8(img), wrap=True, params=params)
+    assert det.valid[sector].mean() <= 0.02
+    inner = ~sector & (np.abs(cols - 460) > 180)                       # away from the sector's edges
+    assert det.valid[inner].mean() >= 0.9
+    assert np.nanmean(np.abs(det.line_row[inner] - rows[inner])) <= 1.0
+    # the control: without the colour check the line is on the slope's foot there, and kept
+    unchecked = detect_skyline(_u8(img), wrap=True, params=replace(params, sky_colour_min_contrast=np.inf))
+    on_foot = unchecked.valid & sector & (np.abs(unchecked.raw_row - foot) < 3)
+    assert on_foot.sum() >= 100
+    # a view whose sky is the ground's colour everywhere (no colour cue): the check stands aside
+    same = _u8(_slope_filling_the_top(np.zeros_like(sector), sky=(0.50, 0.66, 0.86), ground=(0.45, 0.60, 0.78))[0])
+    grey_sky = detect_skyline(same, wrap=True, params=params)
+    assert grey_sky.diagnostics["sky_ground_colour_contrast"] < DIRECT.sky_colour_min_contrast
+    off = detect_skyline(same, wrap=True, params=replace(params, sky_colour_min_contrast=np.inf))
+    np.testing.assert_array_equal(grey_sky.valid, off.valid)

@@ -124,6 +124,40 @@ def test_extraction_errors_against_a_known_truth():
     assert e["extract_median_abs_err_deg"] == pytest.approx(0.0)
 
 
+def test_a_horizon_out_of_the_picture_is_not_seen_and_a_line_kept_there_is_wrong():
+    """A NavCam acquisition's frames end ~32 deg up: where a near slope rises above that, the horizon is not
+    in the picture.  Those azimuths are not asked for (kept / seen), and a line kept there counts as wrong."""
+    from board.acquisition import Panorama, PanoramaGeometry
+
+    g = PanoramaGeometry.full_circle(720, 100, elevation_top_deg=30.0, elevation_bottom_deg=-20.0)  # 0.5 deg/px
+    seen = np.ones((g.height, g.width), bool)
+    seen[:10, 360:] = False                          # the top 10 rows unseen on the second half: top 25 deg
+    seen[:, 700:] = False                            # a gap between frames: nothing seen
+    top, bottom, margin = scoring.view_limits(Panorama(np.zeros((g.height, g.width)), g, seen), 360)
+    assert margin == pytest.approx(1.5)
+    el = g.elevations_deg()
+    assert top[0] == pytest.approx(el[0]) and top[200] == pytest.approx(el[10]) and np.isnan(top[355])
+    assert bottom[0] == pytest.approx(el[-1])
+    truth = np.full(360, 5.0)
+    truth[40:60] = 40.0                              # above the whole view
+    truth[200:220] = 27.0                            # below 30 deg but above the half's 25 deg: hidden
+    truth[100:105] = 29.0                            # within the margin of the top: neither seen nor hidden
+    ext = truth + 0.02
+    ext[40:50] = 12.0                                # a line kept where the horizon is out of view (wrong)
+    ext[50:60] = np.nan
+    ext[200:220] = 20.0                              # ... and there
+    ext[300:318] = np.nan                            # 18 seen azimuths masked
+    ext[350:] = np.nan                               # nothing seen, nothing kept
+    e = scoring.extraction_errors(ext, truth, 1.0, (top, bottom, margin))
+    n_seen = 360 - 20 - 20 - 5 - 10                  # the gap (350-359) is hidden too
+    assert e["kept_fraction"] == pytest.approx((n_seen - 18) / n_seen)
+    assert e["n_kept_hidden"] == 30 and e["kept_hidden_deg"] == 30.0
+    assert e["n_gt1deg"] == 30 and e["n_kept"] == n_seen - 18 + 30
+    assert e["extract_median_abs_err_deg"] == pytest.approx(0.02)
+    plain = scoring.extraction_errors(ext, truth, 1.0)  # without the view: every azimuth seen, as before
+    assert plain["n_kept_hidden"] == 0 and plain["kept_fraction"] == pytest.approx((360 - 10 - 18 - 10) / 360)
+
+
 def test_true_skyline_of_a_level_mast_is_the_horizon_shifted_by_the_heading():
     az = np.arange(3600) * 0.1
     el = 3 + 2 * np.sin(np.radians(az)) + np.cos(np.radians(3 * az))
