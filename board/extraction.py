@@ -51,7 +51,8 @@ class ExtractionOptions:
     black_level: float = 0.03            # fraction of full scale
     saturation_level: float = 0.98
     bad_pixel_fraction: float = 0.9      # fraction of seen pixels black/saturated that fails the picture
-    min_separation: float = 2.0          # sky/ground contrast over their spread below which there is one class
+    min_separation: float = 2.0          # sky/ground contrast over their spread (90th percentile of the columns)
+                                         # below which there is one class
     min_coverage_deg: float = 20.0
     min_ok_fraction: float = 0.9
 
@@ -169,12 +170,14 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
                            "(shorten the exposure)", pano, diag=diag)
     det = detect_skyline(pano.image, seen=seen, wrap=geom.is_full_circle, params=opt.detector)
     diag.update(det.diagnostics)
-    sep = det.diagnostics.get("separation", 0.0)
+    # the contrast where the view has the most of it (the best tenth of the columns): a NavCam view whose
+    # other half is a near slope filling the frames has its sky in half the columns only
+    sep = det.diagnostics.get("separation_p90", 0.0)
     seen_cols = seen.any(axis=0)
     if sep < opt.min_separation or det.diagnostics.get("reason") == "one class only":
         kind = _uniform_kind(to_grey01(pano.image)[0], seen)
         return _failed(f"{kind}: the picture has no sky/ground contrast (separation {sep:.2f} < "
-                       f"{opt.min_separation})", pano, det, diag)
+                       f"{opt.min_separation} in the best tenth of the columns)", pano, det, diag)
     top = det.diagnostics["line_at_top_fraction"]
     bottom = det.diagnostics["line_at_bottom_fraction"]
     if top >= 0.9:

@@ -404,7 +404,8 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
                 texture_sky=float(np.median(stats[1][0])), texture_ground=float(np.median(stats[1][2])),
                 intensity_sigma_sky=float(np.median(sd_s)), intensity_sigma_ground=float(np.median(sd_g)),
                 polarity_flipped_fraction=float(np.mean(polarity < 0)),
-                intensity_separation=float(np.median(sep_col)), separation=float(np.median(sep_all)))
+                intensity_separation=float(np.median(sep_col)), separation=float(np.median(sep_all)),
+                separation_p90=float(np.percentile(sep_all, 90)))
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere

@@ -394,9 +394,9 @@ def test_quantised_smooth_gradient_is_not_texture():
     assert np.max(raw["gradient"]) > np.max(raw["flat"]) + 0.5                   # the control: steps read as texture
 
 
-def _slope_filling_the_top(sector, *, sky, ground, slope=(0.50, 0.60, 0.74), seed=0):
+def _slope_filling_the_top(sector, *, sky, ground, slope=(0.50, 0.60, 0.74), shade=0.8, seed=0):
     """(H, W, 3) float BGR image and truth rows: a bluish sky over tan ground, except in ``sector`` (a column
-    mask) where a darker near slope of about the ground's colour (``slope``, shaded) fills the view up to its
+    mask) where a darker near slope of about the ground's colour (``slope`` times ``shade``) fills the view up to its
     top (the horizon is above the picture) and meets the flat foreground at a foot 4-6 deg below the
     horizontal."""
     f = SkylineFunction.random(seed + 61)
@@ -409,7 +409,7 @@ def _slope_filling_the_top(sector, *, sky, ground, slope=(0.50, 0.60, 0.74), see
     sky_img = np.asarray(sky, float) * (1.0 + 0.1 * (r / H))[..., None]
     tex = 0.03 * rng.standard_normal((H, W, 1))
     ground_img = np.asarray(ground, float) + tex
-    slope_img = 0.8 * np.asarray(slope, float) + 0.5 * tex
+    slope_img = shade * np.asarray(slope, float) + 0.5 * tex
     is_ground = np.where(sector[None, :], r >= foot[None, :], r >= rows[None, :])
     img = np.where(is_ground[..., None], ground_img, np.where(sector[None, :, None], slope_img, sky_img))
     return np.clip(img + 0.004 * rng.standard_normal(img.shape), 0, 1), rows, foot
