@@ -72,7 +72,7 @@ def make_fix(db: SkyDB, skyline: Skyline, q: QueryModel, smap: ScoreMap | None, 
         hmap = heading_deg(smap.shift, n=db.meta.n_azimuth, db_start_deg=db.meta.azimuth_start_deg,
                            query_start_deg=skyline.azimuth_start_deg)
         lk = map_likelihood(smap.score, lambda r, c: g.xy(r + r0, c + c0), best_xy=(float(x), float(y)), s2=s2c,
-                            radius_m=th.ambiguity_radius_steps * step, step_m=step, angle_deg=hmap,
+                            radius_m=th.ambiguity_radius(step), step_m=step, angle_deg=hmap,
                             best_angle_deg=float(v["heading"]))
         del hmap
         cov_xy = cov_xy + lk.cov_xy
