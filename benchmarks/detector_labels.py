@@ -29,6 +29,7 @@ import shutil
 import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,16 @@ def label_geometry(width: int):
                                         azimuth_reference="heading", kind="intensity")
 
 
+@lru_cache(maxsize=None)
+def body_of_dem(dem: str) -> str:
+    """Body name of a DEM file or ``procedural:BODY:...`` spec."""
+    if dem.startswith("procedural:"):
+        return dem.split(":")[1]
+    from blender_addon.terrain.dem import dem_info
+
+    return dem_info(dem).body.name
+
+
 @dataclass(frozen=True)
 class LabelCase:
     """One labelled view: the DEM, the pose (metres in the DEM's metric CRS, degrees), the look."""
@@ -86,8 +97,20 @@ class LabelCase:
     height_m: float = MAST_HEIGHT_M
 
     @property
+    def look(self) -> str:
+        """The look a campaign renders for this preset on this DEM's body (realistic on the Moon: the Moon's)."""
+        from blender_addon.core.degrade import look_on_body
+
+        return look_on_body(self.preset, body_of_dem(self.dem)).name
+
+    @property
     def key(self) -> str:
-        blob = json.dumps(asdict(self), sort_keys=True).encode()
+        d = asdict(self)
+        if self.look != self.preset:
+            # rendered in the body's look since session 6 (before: the Mars look on every body); the Mars
+            # labels keep their keys
+            d["look"] = self.look
+        blob = json.dumps(d, sort_keys=True).encode()
         return hashlib.sha1(blob).hexdigest()[:12]
 
     @property
@@ -160,6 +183,11 @@ def true_skyline(terrain, case: LabelCase, *, n: int = TRUTH_N_AZIMUTH) -> tuple
     return rel, np.asarray(dist)
 
 
+def case_body(terrain) -> str:
+    """Body name of a multi-resolution terrain."""
+    return str(terrain.body.name)
+
+
 def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, dark_sky: bool = False
                     ) -> tuple[np.ndarray, dict]:
     """Dressed equirectangular render of ``case`` (the steps of ``make_panorama``'s dressed look, with
@@ -175,7 +203,7 @@ def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, d
     from blender_addon.scene import render as R
     from blender_addon.scene.camera import place_camera
 
-    deg = degradation if degradation is not None else degrade.get_degradation(case.preset)
+    deg = degradation if degradation is not None else degrade.look_on_body(case.preset, case_body(terrain))
     # the case's sun direction; the look's sunlight (a body's look has its own strength) is kept
     deg = replace(deg, sun=replace(deg.sun, azimuth_deg=case.sun_azimuth_deg, elevation_deg=case.sun_elevation_deg,
                                    relative=False))

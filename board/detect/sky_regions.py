@@ -90,6 +90,8 @@ class DetectorParams:
                                             # least for the "sky coloured like the ground" check to run
     sky_colour_ramp: tuple[float, float] = (0.25, 0.5)  # a column's sky window this share of the way from the
                                             # ground's colour to the view's sky colour: confidence 0 -> 1
+    colour_second_pass_fraction: float = 0.03   # this share of the columns with a ground-coloured "sky": detect
+                                                # again from classes that start from the pixels' colour
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
 
@@ -307,8 +309,12 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     return _detect_direct(img, seen, wrap, params)
 
 
-def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, params: DetectorParams) -> Detection:
-    """The detector on the image as it is (see the module docstring)."""
+def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, params: DetectorParams, *,
+                   init_classes: tuple[np.ndarray, np.ndarray] | None = None) -> Detection:
+    """The detector on the image as it is (see the module docstring).
+
+    init_classes : (sky, ground) (H, W) bool masks of the first class fit instead of the brightness split
+    (the second pass of a view whose sky the colour check found in only some columns)."""
     import cv2
 
     P = params
@@ -359,6 +365,8 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         del top_b, bot_b
     del top, bottom
     diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
+    if init_classes is not None:
+        sky0, ground0 = init_classes[0] & seen, init_classes[1] & seen
 
     seen_pair = seen[1:] & seen[:-1]
     feats, floors, step_features = _feature_stack(blur, tex, chroma)
@@ -411,10 +419,25 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     # shift with lens dispersion), from the discriminant elsewhere
     y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    no_sky = 0.0
     if chroma is not None:
-        c_colour, diag["sky_ground_colour_contrast"] = _sky_colour_unlike_ground(chroma, seen, b, P)
+        c_colour, offset, g_ref = _sky_colour_unlike_ground(chroma, seen, b, P)
+        diag["sky_ground_colour_contrast"] = offset
+        no_sky = float(np.mean(c_colour[n_seen_col > 0] < 0.5)) if (n_seen_col > 0).any() else 0.0
+        diag["sky_coloured_like_ground_fraction"] = no_sky
         np.minimum(conf, c_colour, out=conf)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
+    if init_classes is None and no_sky >= P.colour_second_pass_fraction:
+        # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
+        # its foot; the real horizon above it (often there, near the top of the view) is found again from
+        # classes that start from the pixels' colour: the sky's colour as sky, the ground's as ground
+        share = (chroma - np.float32(g_ref)) / np.float32(offset)
+        lo, hi = P.sky_colour_ramp
+        again = _detect_direct(image, seen, wrap, P, init_classes=(share >= hi, share <= lo))
+        del share
+        if again.valid.sum() > valid.sum():
+            again.diagnostics["colour_second_pass"] = True
+            return again
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
@@ -759,7 +782,7 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
 
 
 def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
-                              ) -> tuple[np.ndarray, float]:
+                              ) -> tuple[np.ndarray, float, float]:
     """Per column, 1 where the window above the line has the sky's colour, 0 where it has the ground's.
 
     Where near slopes fill the top of a view, there is no sky in those columns: the per-sector classes
@@ -770,7 +793,8 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     the view sets it.  A column whose "sky" window is less than ``P.sky_colour_ramp[0]`` of the way from
     the ground's colour to the sky's gets 0, more than ``[1]`` of the way 1.  Views whose sky and ground
     differ by less than ``P.sky_colour_min_contrast`` (grey images, a dusty sky the regolith's colour)
-    are not checked (all 1).  Returns the per-column factor and that sky-ground colour offset.
+    are not checked (all 1).  Returns the per-column factor, that sky-ground colour offset and the ground's
+    colour (log blue / red).
     """
     W = b.size
     R, m = P.region_window_px, P.contrast_window_px
@@ -780,15 +804,16 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     ok_g = n_g >= P.min_seen_rows
     ok_s = n_s >= P.min_seen_rows
     if ok_g.sum() < 10 or ok_s.sum() < 10:
-        return np.ones(W), 0.0
-    d = sky_c - float(np.median(gr_c[ok_g]))
+        return np.ones(W), 0.0, 0.0
+    g_ref = float(np.median(gr_c[ok_g]))
+    d = sky_c - g_ref
     lo, hi = np.percentile(d[ok_s], [10.0, 90.0])
     offset = float(hi if abs(hi) >= abs(lo) else lo)
     if abs(offset) < P.sky_colour_min_contrast:
-        return np.ones(W), offset
+        return np.ones(W), offset, g_ref
     t0, t1 = P.sky_colour_ramp
     share = np.where(ok_s, d / offset, 1.0)
-    return np.clip((share - t0) / (t1 - t0), 0.0, 1.0), offset
+    return np.clip((share - t0) / (t1 - t0), 0.0, 1.0), offset, g_ref
 
 
 def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, float]:

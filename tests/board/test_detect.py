@@ -438,3 +438,39 @@ def test_no_line_where_a_slope_of_the_grounds_colour_fills_the_top_of_the_view(p
     assert grey_sky.diagnostics["sky_ground_colour_contrast"] < DIRECT.sky_colour_min_contrast
     off = detect_skyline(same, wrap=True, params=replace(params, sky_colour_min_contrast=np.inf))
     np.testing.assert_array_equal(grey_sky.valid, off.valid)
+
+
+def _slope_under_a_high_horizon(sector, seed=0):
+    """(H, W, 3) float BGR image and truth rows: as :func:`_slope_filling_the_top`, but in ``sector`` the
+    slope's crest is the horizon, 22-26 deg up, with the sky above it near the top of the view."""
+    f = SkylineFunction.random(seed + 61)
+    rng = np.random.default_rng(seed)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None] + 0.5
+    cols = np.arange(W)
+    rows = np.where(sector, GEOM.row_of_el(24.0 + 2.0 * np.sin(cols / 17.0)), _truth_rows(f))
+    foot = GEOM.row_of_el(-5.0 + np.sin(cols / 25.0))
+    sky_img = np.array([0.70, 0.62, 0.55]) * (1.0 + 0.1 * (r / H))[..., None]
+    tex = 0.03 * rng.standard_normal((H, W, 1))
+    ground_img = np.array([0.45, 0.60, 0.78]) + tex
+    slope_img = 0.8 * np.array([0.50, 0.60, 0.74]) + 0.5 * tex
+    is_ground = np.where(sector[None, :], r >= foot[None, :], r >= rows[None, :])
+    is_slope = sector[None, :] & (r >= rows[None, :]) & ~is_ground
+    img = np.where(is_ground[..., None], ground_img, np.where(is_slope[..., None], slope_img, sky_img))
+    return np.clip(img + 0.004 * rng.standard_normal(img.shape), 0, 1), rows
+
+
+def test_the_horizon_above_a_near_slope_is_found_again_from_the_colours(params):
+    """Half of the view is a near slope whose crest, 22-26 deg up, is the horizon (held-out Baltoro NavCam).
+    The sector classes fitted on the slope put the line on its foot, where the colour check masks it; the
+    detector then starts again from classes taken from the pixels' colour and finds the crest."""
+    cols = np.arange(GEOM.width)
+    sector = (cols > 200) & (cols < 800)
+    img, rows = _slope_under_a_high_horizon(sector)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
+    assert det.valid[sector].mean() >= 0.95 and det.valid[~sector].mean() >= 0.95
+    assert np.nanmax(np.abs(det.line_row - rows)) <= 2.0
+    # the control: one pass only masks a quarter of the sector (its line on the foot, which the colour check masks)
+    once = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_second_pass_fraction=np.inf))
+    assert once.valid[sector].mean() <= 0.85
+    assert np.nanmax(np.abs(once.line_row - rows)) <= 2.0      # what one pass keeps is right too
