@@ -433,8 +433,11 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         # classes that start from the pixels' colour: the sky's colour as sky, the ground's as ground
         share = (chroma - np.float32(g_ref)) / np.float32(offset)
         lo, hi = P.sky_colour_ramp
-        again = _detect_direct(image, seen, wrap, P, init_classes=(share >= hi, share <= lo))
-        del share
+        init = (share >= hi, share <= lo)
+        # the first pass's images are not needed any more (the second one makes its own: 256 MB on board)
+        del share, grey, blur, tex, chroma, feats, p, proj, node, diff, sky_cls, ground_cls, sky0, ground0
+        again = _detect_direct(image, seen, wrap, P, init_classes=init)
+        del init
         if again.valid.sum() > valid.sum():
             again.diagnostics["colour_second_pass"] = True
             return again

@@ -167,3 +167,4 @@ def test_unseen_pixels_take_the_nearest_seen_pixel_of_their_column(seed):
             # the nearest seen pixel (a tie between one above and one below may take either)
             assert any(np.array_equal(filled[r, c], img[k, c]) for k in near)
     assert fill_unseen_rows(img, np.ones((H, W), bool)) is img
+    np.testing.assert_array_equal(fill_unseen_rows(img, seen, block_columns=7), filled)   # blocks of columns
