@@ -183,11 +183,6 @@ def true_skyline(terrain, case: LabelCase, *, n: int = TRUTH_N_AZIMUTH) -> tuple
     return rel, np.asarray(dist)
 
 
-def case_body(terrain) -> str:
-    """Body name of a multi-resolution terrain."""
-    return str(terrain.body.name)
-
-
 def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, dark_sky: bool = False
                     ) -> tuple[np.ndarray, dict]:
     """Dressed equirectangular render of ``case`` (the steps of ``make_panorama``'s dressed look, with
@@ -203,7 +198,7 @@ def _render_dressed(terrain, case: LabelCase, path: Path, *, degradation=None, d
     from blender_addon.scene import render as R
     from blender_addon.scene.camera import place_camera
 
-    deg = degradation if degradation is not None else degrade.look_on_body(case.preset, case_body(terrain))
+    deg = degradation if degradation is not None else degrade.look_on_body(case.preset, terrain.body.name)
     # the case's sun direction; the look's sunlight (a body's look has its own strength) is kept
     deg = replace(deg, sun=replace(deg.sun, azimuth_deg=case.sun_azimuth_deg, elevation_deg=case.sun_elevation_deg,
                                    relative=False))

@@ -323,49 +323,13 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     seen = seen_or_all(seen, (H, W))
     diag: dict = {"height": H, "width": W, "seen_fraction": float(seen.mean())}
 
-    # first split, per azimuth sector: Otsu on the seen pixels; the sky class is the one filling
-    # the top of the seen area (sunlit ground can be brighter than the sky on one side only)
     if not seen.any():
         return _empty(W, diag | {"reason": "nothing seen"})
     edges = _sector_edges(W, P.n_sectors)
-    seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
-    n_seen_col = seen_rank[-1].copy()
-    band = np.maximum(2, 0.1 * n_seen_col)[None, :]
-    top = seen & (seen_rank <= band)
-    bottom = seen & (seen_rank > n_seen_col[None, :] - band)
-    del seen_rank
-    g_thr, g_bright = _otsu_split(blur, seen, top, bottom)
-    thr_s, bright_s = [], []
-    for c0, c1 in zip(edges[:-1], edges[1:]):
-        if seen[:, c0:c1].sum() < P.min_sector_pixels:
-            thr_s.append(g_thr), bright_s.append(g_bright)
-            continue
-        t, b_ = _otsu_split(blur[:, c0:c1], seen[:, c0:c1], top[:, c0:c1], bottom[:, c0:c1])
-        thr_s.append(t), bright_s.append(b_)
-    thr_col = np.repeat(np.array(thr_s, dtype=np.float32), np.diff(edges))
-    bright_col = np.repeat(np.array(bright_s), np.diff(edges))
-    sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
-    ground0 = seen & ~sky0
-    if P.initial_bands > 0:
-        # the brightness split can put sunlit ground with a sky of the same grey.  Where it contradicts
-        # the view (its "sky" fills the bottom of the seen rows, or its "ground" the top), take the top
-        # and the bottom of the view as sky and ground instead: true of any view with a horizon in it
-        seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
-        band = np.maximum(2, P.initial_bands * n_seen_col)[None, :]
-        top_b = seen & (seen_rank <= band)
-        bot_b = seen & (seen_rank > n_seen_col[None, :] - band)
-        del seen_rank
-        for c0, c1 in zip(edges[:-1], edges[1:]):
-            t, bo = top_b[:, c0:c1], bot_b[:, c0:c1]
-            sky_at_bottom = (sky0[:, c0:c1] & bo).sum() > 0.5 * max(bo.sum(), 1)
-            ground_at_top = (ground0[:, c0:c1] & t).sum() > 0.5 * max(t.sum(), 1)
-            if sky_at_bottom or ground_at_top:
-                sky0[:, c0:c1] = t
-                ground0[:, c0:c1] = bo
-        del top_b, bot_b
-    del top, bottom
-    diag["sky_is_bright_initial_fraction"] = float(np.mean(bright_s))
-    if init_classes is not None:
+    n_seen_col = seen.sum(axis=0, dtype=np.int32)
+    if init_classes is None:
+        sky0, ground0, diag["sky_is_bright_initial_fraction"] = _initial_classes(blur, seen, n_seen_col, edges, P)
+    else:
         sky0, ground0 = init_classes[0] & seen, init_classes[1] & seen
 
     seen_pair = seen[1:] & seen[:-1]
@@ -447,6 +411,49 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
     diag["valid_fraction"] = float(valid.mean())
     return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+
+
+def _initial_classes(blur: np.ndarray, seen: np.ndarray, n_seen_col: np.ndarray, edges: np.ndarray,
+                     P: DetectorParams) -> tuple[np.ndarray, np.ndarray, float]:
+    """(sky, ground) masks of the first class fit and the share of sectors whose sky is the brighter class.
+
+    First split, per azimuth sector: Otsu on the seen pixels; the sky class is the one filling the top of
+    the seen area (sunlit ground can be brighter than the sky on one side only)."""
+    seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
+    band = np.maximum(2, 0.1 * n_seen_col)[None, :]
+    top = seen & (seen_rank <= band)
+    bottom = seen & (seen_rank > n_seen_col[None, :] - band)
+    del seen_rank
+    g_thr, g_bright = _otsu_split(blur, seen, top, bottom)
+    thr_s, bright_s = [], []
+    for c0, c1 in zip(edges[:-1], edges[1:]):
+        if seen[:, c0:c1].sum() < P.min_sector_pixels:
+            thr_s.append(g_thr), bright_s.append(g_bright)
+            continue
+        t, b_ = _otsu_split(blur[:, c0:c1], seen[:, c0:c1], top[:, c0:c1], bottom[:, c0:c1])
+        thr_s.append(t), bright_s.append(b_)
+    del top, bottom
+    thr_col = np.repeat(np.array(thr_s, dtype=np.float32), np.diff(edges))
+    bright_col = np.repeat(np.array(bright_s), np.diff(edges))
+    sky0 = seen & ((blur > thr_col[None, :]) == bright_col[None, :])
+    ground0 = seen & ~sky0
+    if P.initial_bands > 0:
+        # the brightness split can put sunlit ground with a sky of the same grey.  Where it contradicts
+        # the view (its "sky" fills the bottom of the seen rows, or its "ground" the top), take the top
+        # and the bottom of the view as sky and ground instead: true of any view with a horizon in it
+        seen_rank = np.cumsum(seen, axis=0, dtype=np.int32)
+        band = np.maximum(2, P.initial_bands * n_seen_col)[None, :]
+        top_b = seen & (seen_rank <= band)
+        bot_b = seen & (seen_rank > n_seen_col[None, :] - band)
+        del seen_rank
+        for c0, c1 in zip(edges[:-1], edges[1:]):
+            t, bo = top_b[:, c0:c1], bot_b[:, c0:c1]
+            sky_at_bottom = (sky0[:, c0:c1] & bo).sum() > 0.5 * max(bo.sum(), 1)
+            ground_at_top = (ground0[:, c0:c1] & t).sum() > 0.5 * max(t.sum(), 1)
+            if sky_at_bottom or ground_at_top:
+                sky0[:, c0:c1] = t
+                ground0[:, c0:c1] = bo
+    return sky0, ground0, float(np.mean(bright_s))
 
 
 def _feature_stack(blur: np.ndarray, tex: np.ndarray, chroma: np.ndarray | None

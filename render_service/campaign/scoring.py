@@ -24,6 +24,7 @@ import numpy as np
 
 from board.atomic import atomic_path
 from board.conventions import wrap_deg180
+from board.detect.preprocess import seen_or_all
 
 #: A fix farther than this from the truth is wrong (metres), or with a heading error beyond (degrees).
 WRONG_M = 25.0
@@ -44,6 +45,8 @@ COLUMNS = (
 #: rows at least (the detector needs a few rows of sky and of ground); closer to the edge it is neither
 #: counted as seen nor as hidden
 VIEW_MARGIN_ROWS = 3
+
+
 def _look_name(preset: str, body: str) -> str:
     """The name of the look rendered for ``preset`` on ``body`` (e.g. realistic -> realistic-moon)."""
     from blender_addon.core.degrade import look_on_body  # noqa: PLC0415
@@ -97,8 +100,7 @@ def view_limits(pano, n_azimuth: int, azimuth_start_deg: float = 0.0) -> tuple[n
     seen row (degrees, NaN where the column saw nothing), and the margin (degrees) of
     ``VIEW_MARGIN_ROWS`` rows."""
     g = pano.geometry
-    seen = (np.ones((g.height, g.width), dtype=bool) if pano.seen is None
-            else np.asarray(pano.seen, dtype=bool))
+    seen = seen_or_all(pano.seen, (g.height, g.width))
     any_seen = seen.any(axis=0)
     first = np.argmax(seen, axis=0)
     last = seen.shape[0] - 1 - np.argmax(seen[::-1], axis=0)
