@@ -6,7 +6,7 @@ export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
 .PHONY: install lint test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
-	detector-labels bench-detector campaign campaign-ci \
+	detector-labels bench-detector bench-terrain campaign campaign-ci \
 	image image-smoke multinode-smoke
 
 install:
@@ -55,6 +55,10 @@ detector-labels: install
 bench-detector: install
 	nice -n 10 $(PY) -m benchmarks.bench_detector --split tune --per-dem 4 --no-speed
 	nice -n 10 $(PY) -m benchmarks.bench_detector --split validate --per-dem 3
+
+# multi-resolution terrain horizons vs the full-resolution ones, per cells_per_step (docs/terrain.md)
+bench-terrain: install
+	nice -n 10 $(PY) -m benchmarks.bench_terrain_levels
 
 bench-blender: install
 	$(PY) -m benchmarks.bench_blender

@@ -12,6 +12,9 @@ from blender_addon.terrain.crs import crs_name
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
+#: = blender_addon.terrain.multires.CELLS_PER_STEP (not imported here: that module loads GDAL at start-up;
+#: tests/blender_addon/test_multires.py checks the two agree).
+CLI_CELLS_PER_STEP = 4
 
 
 @click.group("dem")
@@ -92,10 +95,13 @@ def info_cmd(dem: str, body: str | None, assume_metric: bool, as_json: bool) -> 
 @click.option("--azimuth-step", type=float, default=1.0, show_default=True, help="Skyline azimuth resolution (deg).")
 @click.option("--max-radius", type=float, default=None,
               help="Keep terrain up to this far beyond the grid (m); default: the DEM's edge.")
+@click.option("--cells-per-step", type=click.IntRange(min=1), default=CLI_CELLS_PER_STEP, show_default=True,
+              help="A coarse level starts where one of its cells subtends 1/N azimuth step (1: smaller files, "
+                   "far ridges lifted by up to a cell).")
 @body_option()
 @assume_metric_option()
 def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size: float, azimuth_step: float,
-                max_radius: float | None, body: str | None, assume_metric: bool) -> None:
+                max_radius: float | None, cells_per_step: int, body: str | None, assume_metric: bool) -> None:
     """Build the multi-resolution terrain (nested max-downsampled GeoTIFF levels + VRT + terrain.json)."""
     from blender_addon.terrain.multires import build_multires
 
@@ -105,7 +111,7 @@ def prepare_cmd(dem: str, center: str, out_dir: str, crs: str | None, grid_size:
     path = c.dem_path
     terrain = build_multires(
         path, c.xy_m, grid_half_m=grid_size / 2.0, azimuth_step_deg=azimuth_step, out_dir=out_dir, body=body,
-        max_radius_m=max_radius, assume_metric=assume_metric, progress=True,
+        max_radius_m=max_radius, assume_metric=assume_metric, progress=True, cells_per_step=cells_per_step,
     )
     from blender_addon.terrain.preview import plot_multires
 

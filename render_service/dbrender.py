@@ -142,6 +142,12 @@ def load_terrain(job: RenderJob, *, terrain_dir=None) -> MultiResTerrain:
     if tdir is not None and (tdir / "terrain.json").is_file():
         log.info("loading the prepared terrain from %s", tdir)
         terrain = mr.load_multires(tdir)
+        n = terrain.meta.get("cells_per_step", 1)
+        if n < mr.CELLS_PER_STEP:
+            log.warning(
+                "the prepared terrain in %s starts its coarse levels at %d cell(s) per azimuth step (this skyloc: %d); "
+                "its far horizons may be lifted by up to a coarse cell: rebuild it with `skyloc dem prepare` "
+                "for the most accurate database", tdir, n, mr.CELLS_PER_STEP)
     else:
         half = max(job.grid.nx, job.grid.ny) * abs(job.grid.geotransform[1]) / 2.0
         cx, cy = job.meta.extra["center_xy_m"]

@@ -2,12 +2,17 @@
 
 Level 0 is the DEM at native resolution over the search grid (site +- grid_half_m)
 plus a margin; level k has cells ``c_k = c_0 * 2**k`` and covers the grid plus
-``c_{k+1} / radians(azimuth_step_deg)``.  A renderer samples, at a point, the finest
-level containing it, so level k (k >= 1) is only used at distances
+``n * c_{k+1} / radians(azimuth_step_deg)`` with ``n = cells_per_step``
+(:data:`CELLS_PER_STEP`).  A renderer samples, at a point, the finest level containing
+it, so level k (k >= 1) is only used at distances
 
-    d >= c_k / radians(azimuth_step_deg)   from every grid position,
+    d >= n * c_k / radians(azimuth_step_deg)   from every grid position,
 
-where one of its cells subtends at most one azimuth step.  Levels are aligned on the
+where one of its cells subtends at most 1/n of an azimuth step.  With n = 1 (one cell
+per step, the rule up to session 7) the max-pooled cells lifted far ridges: database
+horizons were 0.013-0.021 deg RMS above the full-resolution ones on the Moon DEM and
+0.08 deg on the Baltoro one, which moved lost-in-space fixes by metres
+(docs/terrain.md, "Why four cells per step").  Levels are aligned on the
 native grid (each coarse cell is exactly 2**k x 2**k native cells), nest (each contains
 the finer ones) and stop at the DEM's edge or ``max_radius_m``.  Coarse cells hold the
 MAXIMUM of the native cells they cover (GDAL Warp ``max``), so distant peaks keep their
@@ -43,6 +48,8 @@ TERRAIN_FORMAT = "skyloc-multires"
 TERRAIN_VERSION = 1
 #: Largest fraction of the search grid allowed to stay without data (after filling small holes).
 DEFAULT_MAX_GRID_MISSING = 0.01
+#: Coarse level k is used only where one of its cells subtends at most 1/CELLS_PER_STEP azimuth step.
+CELLS_PER_STEP = 4
 _GTIFF_OPTIONS = ["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "BLOCKXSIZE=256", "BLOCKYSIZE=256"]
 
 
@@ -84,15 +91,18 @@ def plan_levels(
     grid_half_m: float,
     azimuth_step_deg: float = 1.0,
     max_radius_m: float | None = None,
+    cells_per_step: int = CELLS_PER_STEP,
 ) -> list[LevelPlan]:
     """Plan the nested levels (see module docstring); pure geometry, reads nothing.
 
     dem_bounds : (xmin, ymin, xmax, ymax) of the DEM (metres); origin_xy : a corner of its native grid
     site_xy : centre of the search grid; grid_half_m : half its side (m)
     max_radius_m : stop at this distance beyond the grid's edge (default: the DEM's edge)
+    cells_per_step : coarse cells per azimuth step where a level starts (integer >= 1; more = finer, larger files)
     """
     if grid_half_m < 0 or azimuth_step_deg <= 0 or native_cell_m <= 0:
         raise InvalidInputError("grid_half_m must be >= 0 and azimuth_step_deg, the cell size > 0")
+    _check_cells_per_step(cells_per_step)
     sx, sy = site_xy
     xmin, ymin, xmax, ymax = dem_bounds
     if not (xmin <= sx <= xmax and ymin <= sy <= ymax):
@@ -107,15 +117,24 @@ def plan_levels(
     k = 0
     while True:
         cell = native_cell_m * 2**k
-        half = grid_half_m + (2.0 * cell) / step  # until the next (2x coarser) level becomes admissible
+        half = grid_half_m + cells_per_step * (2.0 * cell) / step  # until the next (2x coarser) level is admissible
         want = _intersect(roi, (sx - half, sy - half, sx + half, sy + half))
         b = _snap_out(want, origin_xy, cell)
-        inner = 0.0 if k == 0 else cell / step
+        inner = 0.0 if k == 0 else cells_per_step * cell / step
         levels.append(LevelPlan(k, cell, b, inner))
         covers = want == roi
         if covers or k > 40:
             return levels
         k += 1
+
+
+def _check_cells_per_step(n: object) -> None:
+    """Refuse a cells_per_step that is not an integer >= 1 (a bool, a float or 0 would silently change the rule)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise InvalidInputError(
+            f"cells_per_step must be an integer >= 1 (got {n!r}): use {CELLS_PER_STEP} (the default), "
+            "or 1 for the smaller, coarser terrain of skyloc before session 7"
+        )
 
 
 def _warp_level(src: MetricSource, plan: LevelPlan) -> np.ndarray:
@@ -171,6 +190,7 @@ def build_multires(
     max_hole_cells: int = DEFAULT_MAX_HOLE_CELLS,
     max_grid_missing: float = DEFAULT_MAX_GRID_MISSING,
     progress: bool = False,
+    cells_per_step: int = CELLS_PER_STEP,
 ) -> MultiResTerrain:
     """Build the nested max-downsampled levels of a DEM around a site (finest first).
 
@@ -179,14 +199,17 @@ def build_multires(
     out_dir : when given, writes level_K.tif, terrain.vrt and terrain.json there (atomically)
     max_radius_m : how far beyond the grid's edge to keep terrain (default: to the DEM's edge)
     max_grid_missing : refuse (NoDataError) when more of the search grid has no data
+    cells_per_step : a coarse level starts where one of its cells subtends 1/cells_per_step azimuth step
 
     Returns a MultiResTerrain whose levels are float32 metres with NaN for nodata.
     """
+    _check_cells_per_step(cells_per_step)
     src = open_metric_source(dem_path, body=body, assume_metric=assume_metric)
     gt = src.geotransform
     plans = plan_levels(
         src.bounds(), src.cell_m, (gt[0], gt[3]), (float(site_xy[0]), float(site_xy[1])),
         grid_half_m=grid_half_m, azimuth_step_deg=azimuth_step_deg, max_radius_m=max_radius_m,
+        cells_per_step=int(cells_per_step),
     )
     sha = file_sha256(dem_path)
     levels: list[TerrainLevel] = []
@@ -210,6 +233,7 @@ def build_multires(
         "grid_half_m": float(grid_half_m),
         "azimuth_step_deg": float(azimuth_step_deg),
         "max_radius_m": None if max_radius_m is None else float(max_radius_m),
+        "cells_per_step": int(cells_per_step),
         "inner_distance_m": [p.inner_distance_m for p in plans],
         "source": str(dem_path),
         "source_is_geographic": src.is_geographic,
@@ -291,8 +315,9 @@ def write_multires(terrain: MultiResTerrain, out_dir: str | os.PathLike, *, repo
             "crs_wkt": terrain.crs_wkt,
             "body": {"name": terrain.body.name, "radius_m": terrain.body.radius_m},
             "dem_sha256": terrain.dem_sha256,
-            "rule": "level k >= 1 (cell c_k) is used only beyond inner_distance_m = c_k / radians(azimuth_step_deg) "
-                    "from every grid position; cells hold the maximum of the native cells they cover",
+            "rule": "level k >= 1 (cell c_k) is used only beyond inner_distance_m = "
+                    "cells_per_step * c_k / radians(azimuth_step_deg) from every grid position; "
+                    "cells hold the maximum of the native cells they cover",
             "vrt": "terrain.vrt",
             "levels": entries,
             "meta": terrain.meta,

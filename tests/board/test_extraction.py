@@ -89,6 +89,79 @@ def test_point_sampling_is_exact_for_a_linear_line():
     assert np.isnan(sk2.elevation_deg[9]) and np.isfinite(sk2.elevation_deg).sum() == 35
 
 
+def _brute_force_fit(el_col, col_az, a, half_deg, period=360.0):
+    """Reference: np.polyfit of the finite columns within ``half_deg`` of azimuth ``a`` (wrapped)."""
+    d = (col_az - a + period / 2) % period - period / 2
+    m = (np.abs(d) <= half_deg + 1e-9) & np.isfinite(el_col)
+    return np.polyval(np.polyfit(d[m], el_col[m], 1), 0.0)
+
+
+def test_samples_fit_the_columns_within_half_a_step():
+    """Independent column errors (sigma): a line through the 4 columns of a 1-degree step at 1440 px
+    (offsets +-0.5, +-1.5 columns) has intercept noise sigma / 2; interpolation between the two columns
+    around the sample (fit_half_steps = 0, the control) sigma / sqrt 2.  A curved line is biased by at
+    most |el''| w**2 / 2 (w = half a step, degrees)."""
+    g = PanoramaGeometry.full_circle(1440, 200, elevation_top_deg=20, elevation_bottom_deg=-20)
+    rng = np.random.default_rng(4)
+    sigma = 0.1
+    e_fit, e_int = [], []
+    for _ in range(20):
+        el = rng.normal(0.0, sigma, g.width)
+        rows = g.row_of_el(el)
+        e_fit.append(panorama_line_to_skyline(rows, g).elevation_deg)
+        e_int.append(panorama_line_to_skyline(rows, g, fit_half_steps=0.0).elevation_deg)
+    rms_fit = float(np.sqrt(np.mean(np.square(e_fit))))
+    rms_int = float(np.sqrt(np.mean(np.square(e_int))))
+    assert rms_fit == pytest.approx(sigma / 2, rel=0.05)
+    assert rms_int == pytest.approx(sigma / np.sqrt(2), rel=0.05)
+    # the fit equals the brute-force least squares of the same columns
+    el = rng.normal(0.0, sigma, g.width)
+    sk = panorama_line_to_skyline(g.row_of_el(el), g, azimuth_start_deg=0.3)
+    ref = [_brute_force_fit(el, g.azimuths_deg(), a, 0.5) for a in sk.azimuths_deg()]
+    np.testing.assert_allclose(sk.elevation_deg, ref, atol=1e-9)
+    # curvature: el = A sin(2 pi az / P), |el''| <= A (2 pi / P)**2
+    A, P = 2.0, 20.0
+    for start in (0.0, 0.1, 0.375):
+        sk = panorama_line_to_skyline(g.row_of_el(A * np.sin(2 * np.pi * g.azimuths_deg() / P)), g,
+                                      azimuth_start_deg=start)
+        err = sk.elevation_deg - A * np.sin(2 * np.pi * sk.azimuths_deg() / P)
+        bound = A * (2 * np.pi / P) ** 2 * 0.5**2 / 2
+        assert np.max(np.abs(err)) <= bound
+        assert np.max(np.abs(err)) > bound / 10      # the bound is not vacuous: there is a bias
+
+
+def test_sample_fit_ignores_masked_columns_and_the_edge_of_a_partial_view():
+    g = PanoramaGeometry.full_circle(1440, 200, elevation_top_deg=20, elevation_bottom_deg=-20)
+    rng = np.random.default_rng(9)
+    el = 0.05 * np.sin(np.radians(g.azimuths_deg()) * 3) + rng.normal(0, 0.05, g.width)
+    az = g.azimuths_deg()
+    masked = el.copy()
+    # around the sample at 100 deg (columns centred 99.625 .. 100.375): mask an outer column only
+    outer = int(np.argmin(np.abs(az - 99.625)))
+    masked[outer] = np.nan
+    sk = panorama_line_to_skyline(g.row_of_el(masked), g)
+    assert np.isfinite(sk.elevation_deg[100])
+    assert sk.elevation_deg[100] == pytest.approx(_brute_force_fit(masked, az, 100.0, 0.5), abs=1e-9)
+    # a masked neighbour of the sample still masks it (the rule of the interpolation is unchanged)
+    masked[int(np.argmin(np.abs(az - 100.125)))] = np.nan
+    assert np.isnan(panorama_line_to_skyline(g.row_of_el(masked), g).elevation_deg[100])
+    assert np.isfinite(panorama_line_to_skyline(g.row_of_el(masked), g).elevation_deg[[99, 101]]).all()
+    # partial view: 100 columns from 50 deg, the sample at the first column-pair uses only inside columns
+    part = PanoramaGeometry(100, 200, 50.125, 0.25, g.elevation_row0_deg, g.elevation_step_deg)
+    pel = el[200:300]
+    paz = part.azimuths_deg()
+    sk = panorama_line_to_skyline(part.row_of_el(pel), part)
+    assert np.isnan(sk.elevation_deg[:51]).all() and np.isnan(sk.elevation_deg[75:]).all()
+    assert np.isfinite(sk.elevation_deg[51:75]).all()
+    # samples 0.3 column inside the left edge and 0.3 inside the right one: their windows are cut by the edge
+    for start, j in ((0.2, 50), (0.8, 74)):
+        sk = panorama_line_to_skyline(part.row_of_el(pel), part, azimuth_start_deg=start)
+        a = start + j
+        assert sk.elevation_deg[j] == pytest.approx(_brute_force_fit(pel, paz, a, 0.5, period=1e9), abs=1e-9)
+    with pytest.raises(InvalidInputError, match="fit_half_steps"):
+        panorama_line_to_skyline(g.row_of_el(el), g, fit_half_steps=-1.0)
+
+
 def test_partial_panorama_nan_outside():
     f = SkylineFunction.random(23)
     img = _u8(synth_panorama(GEOM, f, noise_sigma=0.01))
