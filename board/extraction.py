@@ -245,7 +245,7 @@ def _uniform_kind(grey: np.ndarray, seen: np.ndarray, *, texture_threshold: floa
 #: steps of it (docs/extraction.md, "Pipeline", step 6).  The detector's per-column errors are nearly
 #: independent (lag-1 autocorrelation 0.07 at 1440 px), so using the ~4 columns of a 1-degree step instead
 #: of the 2 around the sample brought the kept samples from 0.049 to 0.037 deg RMS against the ray-marched
-#: truth (60 Aristoteles panoramas: docs/benchmarks.md, "Session 8").
+#: truth (60 Aristoteles panoramas, session 7; held-out campaigns: docs/benchmarks.md, "Session 8").
 SAMPLE_FIT_HALF_STEPS = 0.5
 
 
