@@ -403,8 +403,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         again = _detect_direct(image, seen, wrap, P, init_classes=init)
         del init
         if again.valid.sum() > valid.sum():
-            again.diagnostics["colour_second_pass"] = True
+            again.diagnostics["colour_second_pass"] = "kept"
             return again
+        diag["colour_second_pass"] = "ran, first pass kept"
     first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
