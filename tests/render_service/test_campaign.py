@@ -305,6 +305,27 @@ def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
 
 @pytest.mark.slow
 @pytest.mark.blender
+def test_the_database_floor_locates_each_true_horizon_near_its_pose(campaign_run):
+    """benchmarks.campaign_db_floor: the run's ray-marched truths, as level queries in the north frame,
+    land within half a grid step of the poses drawn off the grid, at heading 0 within 3 sigma (a truth or
+    database azimuth frame off by a sample, or the poses mixed up, puts them metres to hundreds of metres
+    away, or a degree off)."""
+    from benchmarks.campaign_db_floor import floor_rows, main
+    from board.skydb import SkyDB
+
+    out, _ = campaign_run
+    step = SkyDB.open(out / "db.zarr").meta.grid.geotransform[1]
+    poses = json.loads((out / "poses.json").read_text())["accepted"]
+    rows = floor_rows(out)
+    assert [r["index"] for r in rows] == [p["index"] for p in poses]
+    for r in rows:
+        assert r["error_m"] <= 0.5 * step, r
+        assert r["heading_error_deg"] <= 3.0 * r["sigma_heading_deg"] and r["status"] != "failed", r
+    assert main([str(out / "no such run")]) == 2
+
+
+@pytest.mark.slow
+@pytest.mark.blender
 def test_killed_campaign_resumes_to_the_same_results_without_recomputing(campaign_run, tmp_path):
     ref, _ = campaign_run
     out = tmp_path / "run"

@@ -1,0 +1,79 @@
+"""The database's own error floor in a finished campaign: its true horizons located as queries.
+
+A campaign (``skyloc campaign --out RUN``) keeps the ray-marched true horizon of every hidden pose
+(``truth.npz``, level, at ``truth_step_deg``) and the database it located against (``db.zarr``).
+Locating each true horizon, sampled at the database's azimuths, against that database measures what
+the database and the matcher alone contribute to the campaign's position errors: the grid's
+interpolation between nodes, the terrain levels, the horizon's quantisation.  What the campaign
+loses beyond that floor is the image chain (render, detection, sampling).
+
+    python -m benchmarks.campaign_db_floor RUN [RUN ...]
+
+Prints one row per pose (error in metres, sigmas, status) and a summary per run.  Truth azimuths
+are absolute (grid north, clockwise), so the expected heading is 0 deg.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def truth_queries(run: Path, azimuths_deg: np.ndarray) -> tuple[list[dict], np.ndarray]:
+    """The run's accepted poses and their true horizons (degrees; azimuths from grid north, the truth's
+    samples start at 0) interpolated, periodically, at the database's ``azimuths_deg``."""
+    poses = json.loads((run / "poses.json").read_text())["accepted"]
+    truth = np.load(run / "truth.npz")["elevation_deg"].astype(np.float64)
+    az = np.arange(truth.shape[1] + 1) * 360.0 / truth.shape[1]
+    q = np.stack([np.interp(np.mod(azimuths_deg, 360.0), az, np.append(t, t[0])) for t in truth])
+    return poses, q
+
+
+def floor_rows(run: Path) -> list[dict]:
+    """One dict per pose: index, status, error_m, sigma_x_m, sigma_y_m, sigma_heading_deg, heading_error_deg."""
+    from board.conventions import wrap_deg180
+    from board.locate import locate
+    from board.skydb import SkyDB
+    from board.skyline import Skyline
+
+    db = SkyDB.open(run / "db.zarr")
+    poses, queries = truth_queries(run, db.meta.azimuths_deg())
+    rows = []
+    for p, el in zip(poses, queries):
+        fix = locate(db, Skyline(el, db.meta.azimuth_start_deg, db.meta.azimuth_step_deg), mode="lost")
+        rows.append({"index": int(p["index"]), "status": fix.status,
+                     "error_m": math.hypot(fix.x - p["x"], fix.y - p["y"]),
+                     "sigma_x_m": fix.sigma_x_m, "sigma_y_m": fix.sigma_y_m, "sigma_heading_deg": fix.sigma_heading_deg,
+                     "heading_error_deg": abs(float(wrap_deg180(fix.heading_deg)))})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path, help="campaign output folders (with truth.npz, db.zarr)")
+    a = ap.parse_args(argv)
+    for run in a.runs:
+        missing = [f for f in ("poses.json", "truth.npz", "db.zarr") if not (run / f).exists()]
+        if missing:
+            print(f"{run}: not a finished campaign folder (missing {', '.join(missing)})", file=sys.stderr)
+            return 2
+        rows = floor_rows(run)
+        print(f"\n{run}: {len(rows)} true horizons located against the campaign's database")
+        print("| pose | status | error (m) | sigma x / y (m) | heading error (deg) |")
+        print("| ---: | --- | ---: | --- | ---: |")
+        for r in rows:
+            print(f"| {r['index']} | {r['status']} | {r['error_m']:.2f} | {r['sigma_x_m']:.2f} / {r['sigma_y_m']:.2f} "
+                  f"| {r['heading_error_deg']:.3f} |")
+        e = np.array([r["error_m"] for r in rows])
+        ok = sum(r["status"] == "ok" for r in rows)
+        print(f"summary: error median {np.median(e):.2f} m, p90 {np.percentile(e, 90):.2f} m, max {e.max():.2f} m; "
+              f"{ok} of {len(rows)} ok; heading error max {max(r['heading_error_deg'] for r in rows):.3f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
