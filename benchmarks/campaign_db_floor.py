@@ -1,7 +1,7 @@
 """The database's own error floor in a finished campaign: its true horizons located as queries.
 
 A campaign (``skyloc campaign --out RUN``) keeps the ray-marched true horizon of every hidden pose
-(``truth.npz``, level, at ``truth_step_deg``) and the database it located against (``db.zarr``).
+(``truth.npz``, level, every 0.1 deg from grid north) and the database it located against (``db.zarr``).
 Locating each true horizon, sampled at the database's azimuths, against that database measures what
 the database and the matcher alone contribute to the campaign's position errors: the grid's
 interpolation between nodes, the terrain levels, the horizon's quantisation.  What the campaign
@@ -23,13 +23,16 @@ from pathlib import Path
 import numpy as np
 
 
-def truth_queries(run: Path, azimuths_deg: np.ndarray) -> tuple[list[dict], np.ndarray]:
-    """The run's accepted poses and their true horizons (degrees; azimuths from grid north, the truth's
-    samples start at 0) interpolated, periodically, at the database's ``azimuths_deg``."""
+def truth_queries(run: Path, n_azimuth: int, start_deg: float) -> tuple[list[dict], np.ndarray]:
+    """The run's accepted poses and their true horizons (degrees) as a level mast at heading 0 sees them
+    on the database's azimuth grid (``n_azimuth`` samples from ``start_deg``): the resampling the
+    campaign's scoring applies to the truth (:func:`board.match.synthetic.observe`)."""
+    from board.match.synthetic import observe
+
     poses = json.loads((run / "poses.json").read_text())["accepted"]
     truth = np.load(run / "truth.npz")["elevation_deg"].astype(np.float64)
-    az = np.arange(truth.shape[1] + 1) * 360.0 / truth.shape[1]
-    q = np.stack([np.interp(np.mod(azimuths_deg, 360.0), az, np.append(t, t[0])) for t in truth])
+    az = np.arange(truth.shape[1]) * 360.0 / truth.shape[1]
+    q = np.stack([observe(az, t, heading_deg=0.0, n=n_azimuth, start_deg=start_deg) for t in truth])
     return poses, q
 
 
@@ -41,7 +44,7 @@ def floor_rows(run: Path) -> list[dict]:
     from board.skyline import Skyline
 
     db = SkyDB.open(run / "db.zarr")
-    poses, queries = truth_queries(run, db.meta.azimuths_deg())
+    poses, queries = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg)
     rows = []
     for p, el in zip(poses, queries):
         fix = locate(db, Skyline(el, db.meta.azimuth_start_deg, db.meta.azimuth_step_deg), mode="lost")
