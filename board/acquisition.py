@@ -33,6 +33,7 @@ import numpy as np
 
 from board.camera import CameraModel
 from board.errors import FormatError, InvalidInputError
+from board.transfer import DEFAULT_TRANSFER, check_transfer
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +111,8 @@ class Acquisition:
     camera : intrinsics and distortion; mast_height_m : optical centre above the ground (metres);
     frames : per-frame file and pan/tilt; attitude : measured body (pitch, roll) in degrees used
     to level the panorama, or None (assume level); truth : ground truth of simulated data;
-    root : the folder it was loaded from (None before it is written).
+    root : the folder it was loaded from (None before it is written); transfer : how the frames' values
+    relate to the light (:mod:`board.transfer`, ``"srgb"`` unless the manifest says ``"linear"``).
     """
 
     camera: CameraModel
@@ -120,10 +122,12 @@ class Acquisition:
     truth: GroundTruth | None = None
     meta: dict = field(default_factory=dict)
     root: Path | None = None
+    transfer: str = DEFAULT_TRANSFER
 
     def to_dict(self) -> dict:
         d: dict = {"format": ACQUISITION_FORMAT, "version": ACQUISITION_VERSION, "camera": self.camera.to_dict(),
-                   "mast_height_m": float(self.mast_height_m), "frames": [f.to_dict() for f in self.frames]}
+                   "mast_height_m": float(self.mast_height_m), "frames": [f.to_dict() for f in self.frames],
+                   "transfer": check_transfer(self.transfer)}
         if self.attitude is not None:
             d["attitude"] = {"pitch_deg": float(self.attitude[0]), "roll_deg": float(self.attitude[1])}
         if self.truth is not None:
@@ -235,7 +239,8 @@ class Panorama:
     """An equirectangular image with its geometry.
 
     image : (H, W) or (H, W, 3) array; seen : (H, W) bool, False where nothing was observed;
-    mast_height_m, truth, meta : carried through from the acquisition or the simulator.
+    mast_height_m, truth, meta : carried through from the acquisition or the simulator; transfer : how the
+    image's values relate to the light (:mod:`board.transfer`).
     """
 
     image: np.ndarray
@@ -245,6 +250,7 @@ class Panorama:
     truth: GroundTruth | None = None
     meta: dict = field(default_factory=dict)
     root: Path | None = None
+    transfer: str = DEFAULT_TRANSFER
 
 
 # -- schema and image helpers ----------------------------------------------------------------------
@@ -332,7 +338,8 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
     att = doc.get("attitude")
     return Acquisition(camera, float(doc["mast_height_m"]), frames,
                        None if att is None else (float(att["pitch_deg"]), float(att["roll_deg"])),
-                       GroundTruth.from_dict(doc.get("truth")), dict(doc.get("meta", {})), root)
+                       GroundTruth.from_dict(doc.get("truth")), dict(doc.get("meta", {})), root,
+                       doc.get("transfer", DEFAULT_TRANSFER))
 
 
 def write_acquisition(folder: str | os.PathLike, acq: Acquisition, *,
@@ -388,17 +395,17 @@ def load_panorama(folder: str | os.PathLike) -> Panorama:
             raise FormatError(f"{where}: mask size {m.shape[:2]} differs from the image {image.shape[:2]}")
         seen = (m if m.ndim == 2 else m[..., 0]) > 0
     return Panorama(image, geom, seen, doc.get("mast_height_m"), GroundTruth.from_dict(doc.get("truth")),
-                    dict(doc.get("meta", {})), root)
+                    dict(doc.get("meta", {})), root, doc.get("transfer", DEFAULT_TRANSFER))
 
 
 def write_panorama(folder: str | os.PathLike, image: np.ndarray, geometry: PanoramaGeometry, *,
                    seen: np.ndarray | None = None, mast_height_m: float | None = None,
                    truth: GroundTruth | None = None, meta: dict | None = None,
-                   image_name: str = "panorama.png") -> Path:
+                   image_name: str = "panorama.png", transfer: str = DEFAULT_TRANSFER) -> Path:
     """Write a panorama folder: image (and ``seen`` mask) first, then ``panorama.json``, each atomically.
 
-    image : (H, W) or (H, W, 3) uint8/uint16 (bool is written as 0/255); seen : (H, W) bool or None.
-    Returns the manifest path.
+    image : (H, W) or (H, W, 3) uint8/uint16 (bool is written as 0/255); seen : (H, W) bool or None;
+    transfer : how the values relate to the light (:mod:`board.transfer`).  Returns the manifest path.
     """
     root = Path(folder)
     image = np.asarray(image)
@@ -408,7 +415,7 @@ def write_panorama(folder: str | os.PathLike, image: np.ndarray, geometry: Panor
     root.mkdir(parents=True, exist_ok=True)
     _write_image_atomic(root / image_name, image)
     doc: dict = {"format": PANORAMA_FORMAT, "version": PANORAMA_VERSION, "image": image_name,
-                 **geometry.to_dict()}
+                 **geometry.to_dict(), "transfer": check_transfer(transfer)}
     if seen is not None:
         seen = np.asarray(seen, dtype=bool)
         if seen.shape != image.shape[:2]:

@@ -169,7 +169,7 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
         if frac_sat >= opt.bad_pixel_fraction:
             return _failed(f"over-exposed picture: {100 * frac_sat:.0f}% of the seen pixels are saturated "
                            "(shorten the exposure)", pano, diag=diag)
-    det = detect_skyline(pano.image, seen=seen, wrap=geom.is_full_circle, params=opt.detector)
+    det = detect_skyline(pano.image, seen=seen, wrap=geom.is_full_circle, params=opt.detector, transfer=pano.transfer)
     diag.update(det.diagnostics)
     # the contrast where the view has the most of it (the best tenth of the columns): a NavCam view whose
     # other half is a near slope filling the frames has its sky in half the columns only

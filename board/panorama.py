@@ -167,7 +167,7 @@ def build_panorama(acq: Acquisition | str, *, azimuth_step_deg: float | None = N
         out = np.clip(np.rint(out), 0, np.iinfo(first.dtype).max).astype(first.dtype)
     log.info("panorama %dx%d px, %.3f deg/px, elevation %.1f..%.1f deg, %.0f%% seen", geom.width, geom.height,
              geom.azimuth_step_deg, geom.el_of_row(geom.height - 1), geom.elevation_row0_deg, 100 * seen.mean())
-    return Panorama(out, geom, seen, acq.mast_height_m, acq.truth, meta, None)
+    return Panorama(out, geom, seen, acq.mast_height_m, acq.truth, meta, None, acq.transfer)
 
 
 def refine_pan_angles(images: list[np.ndarray], camera: CameraModel, pans: np.ndarray, tilts: np.ndarray,

@@ -138,12 +138,13 @@ def synth_frames(camera: CameraModel, plan: Sequence[tuple[float, float]], skyli
 def synth_acquisition(folder: str | Path, camera: CameraModel, plan: Sequence[tuple[float, float]],
                       skyline: SkylineFunction, *, mast_height_m: float = 2.0, attitude_known: bool = True,
                       pitch_deg: float = 0.0, roll_deg: float = 0.0, **frame_kw) -> Acquisition:
-    """Write an acquisition folder of :func:`synth_frames` (truth: heading 0 at the origin)."""
+    """Write an acquisition folder of :func:`synth_frames` (truth: heading 0 at the origin); its values are
+    linear in the light (``transfer: "linear"``)."""
     imgs = synth_frames(camera, plan, skyline, pitch_deg=pitch_deg, roll_deg=roll_deg, **frame_kw)
     frames = [FrameInfo(f"frame_{i:03d}.png", float(p), float(t)) for i, (p, t) in enumerate(plan)]
     acq = Acquisition(camera, mast_height_m, frames,
                       attitude=(pitch_deg, roll_deg) if attitude_known else None,
                       truth=GroundTruth(0.0, 0.0, 0.0, pitch_deg=pitch_deg, roll_deg=roll_deg),
-                      meta={"synthetic": True})
+                      meta={"synthetic": True}, transfer="linear")   # coverage anti-aliasing, linear values
     write_acquisition(folder, acq, images=imgs)
     return acq

@@ -127,7 +127,8 @@ def acquisition_record(job: AcquisitionJob, meta: dict, *, eye_z_m: float, crs_w
                         crs=crs_wkt, dem=dem_spec)
     return Acquisition(cam, job.camera.mast_height_m, frames,
                        attitude=(p.pitch_deg + float(att_err[0]), p.roll_deg + float(att_err[1])),
-                       truth=truth, meta=meta)
+                       truth=truth, meta=meta,   # degrade_frame encodes sRGB; binary looks are 0 / max
+                       transfer="linear" if job.degradation.binary else "srgb")
 
 
 def write_acquisition_folder(out_dir: str | os.PathLike, acq: Acquisition, images: list[np.ndarray]) -> Path:

@@ -29,6 +29,7 @@ import numpy as np
 from board.camera import CameraModel
 from board.conventions import BODIES
 from board.errors import InvalidInputError
+from board.transfer import srgb_decode, srgb_encode  # noqa: F401  (re-exported: the simulator's transfer)
 
 log = logging.getLogger(__name__)
 
@@ -539,18 +540,6 @@ def add_sensor_noise(image: np.ndarray, rng: np.random.Generator, *, full_well_e
     if read_noise_e > 0:
         electrons = electrons + rng.normal(0.0, read_noise_e, size=img.shape)
     return np.clip(electrons / full_well_e, 0.0, 1.0).astype(np.float32)
-
-
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """sRGB transfer function on linear values in [0, 1]."""
-    x = np.clip(linear, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-
-
-def srgb_decode(encoded: np.ndarray) -> np.ndarray:
-    """Inverse sRGB transfer function (encoded [0, 1] -> linear)."""
-    x = np.clip(encoded, 0.0, 1.0)
-    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
 
 
 def decode_render(image: np.ndarray) -> np.ndarray:

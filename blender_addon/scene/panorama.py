@@ -120,6 +120,8 @@ def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLi
         truth = GroundTruth(x=pose.x, y=pose.y, heading_deg=pose.heading_deg, z=z, pitch_deg=pose.pitch_deg,
                             roll_deg=pose.roll_deg, crs=terrain.crs_wkt, dem=dem)
         meta.update({"seed": int(seed), "body_radius_m": float(terrain.body.radius_m), "curvature": True})
-        write_panorama(tmp, img, geom, mast_height_m=height_m, truth=truth, meta=meta)
+        # binary renders are 0 / max (light or none); dressed ones sRGB-encoded (_dressed_image)
+        write_panorama(tmp, img, geom, mast_height_m=height_m, truth=truth, meta=meta,
+                       transfer="linear" if binary else "srgb")
     log.info("panorama written to %s", out)
     return out

@@ -43,6 +43,7 @@ import numpy as np
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
 from board.errors import InvalidInputError
+from board.transfer import check_transfer, to_linear
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +73,8 @@ class DetectorParams:
     wrap_margin_columns: int = 200
     use_colour: bool = True             # add log(blue / red) to the features of a colour image
     intensity_subpixel_separation: float = 1.5   # intensity separation above which the line is placed on the grey step
+    transfer: str = "srgb"              # the image's transfer function (board.transfer): the grey step is placed
+                                        # on the linearised image, where blur and pixel area average the light
     ground_broadening: float = 0.0      # ground spread at least this fraction of the sky-ground distance (re-fits)
     sky_band_px: int = 0               # the sky is re-fitted on this many rows above the line (haze gradients)
     smooth_evidence_cap: float = 0.5    # most sky evidence (log-likelihood ratio) smoothness alone may give
@@ -286,11 +289,13 @@ def _bands_from_line(line: np.ndarray, H: int, margin: int, sky_band: int = 0) -
 
 # -- the detector ---------------------------------------------------------------------------------
 def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: bool = False,
-                   params: DetectorParams = DetectorParams()) -> Detection:
+                   params: DetectorParams = DetectorParams(), transfer: str | None = None) -> Detection:
     """Detect the skyline in an (H, W) or (H, W, 3) image whose columns are azimuths and rows elevations.
 
     seen : (H, W) bool, False where nothing was observed (never used as evidence); wrap : True for
-    a 360-degree panorama.  Returns a :class:`Detection` (rows in pixels, see the module docstring).
+    a 360-degree panorama; transfer : the image's transfer function (``"srgb"`` or ``"linear"``,
+    :mod:`board.transfer`; default ``params.transfer``, sRGB): the sub-pixel line is placed on the
+    light, not on the stored values.  Returns a :class:`Detection` (rows in pixels, see the module docstring).
 
     Images of more than ``params.max_direct_pixels`` pixels are detected coarse to fine
     (:func:`_detect_coarse_to_fine`): the whole detector on a copy reduced by an integer factor,
@@ -299,6 +304,10 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     img = np.asarray(image)
     if img.ndim not in (2, 3):
         raise InvalidInputError(f"an image is (H, W) or (H, W, 3), got shape {img.shape}")
+    if transfer is not None:
+        from dataclasses import replace  # noqa: PLC0415
+
+        params = replace(params, transfer=check_transfer(transfer))
     H, W = img.shape[:2]
     if seen is not None:
         # the features look a few rows across: the seen border must not see the black beyond it
@@ -381,7 +390,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
+    y = _subpixel_line(blur, _linear_blur(image, P), diff, b, seen_pair, polarity, sep_col, contrast, P)
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     no_sky = 0.0
     if chroma is not None:
@@ -476,12 +485,14 @@ def _sky_probability(llr: np.ndarray) -> np.ndarray:
     return llr
 
 
-def _subpixel_line(blur: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
+def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
                    polarity: np.ndarray, sep_col: np.ndarray, contrast: np.ndarray, P: DetectorParams) -> np.ndarray:
     """Sub-pixel line per column (rows) from the intensity step where intensity separates the classes and
     the grey level steps at the line by at least ``P.local_grey_step`` of the class ``contrast`` (colour
     edges shift with lens dispersion), from the discriminant's step ``diff`` elsewhere.  The step's sign is
-    the local one (``polarity``, the classes' sky -> ground sign, where the grey level is flat)."""
+    the local one (``polarity``, the classes' sky -> ground sign, where the grey level is flat).  ``blur`` is
+    the stored grey (the classes' units), ``lin`` the same blurred grey as linear light, where the step is
+    placed (an sRGB-encoded blurred step peaks up to half a pixel towards its dark side)."""
     # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
     # the horizon brighter than the ground while the sky as a whole is darker)
     w = P.contrast_window_px
@@ -490,8 +501,8 @@ def _subpixel_line(blur: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair:
     below, _ = _window_mean(blur[1:], sf, b - 1, 1, w + 1)
     local = np.nan_to_num(below - above)
     polarity = np.where(local != 0, np.sign(local), polarity).astype(np.float32)
-    istep = np.zeros(blur.shape, dtype=np.float32)
-    np.subtract(blur[1:], blur[:-1], out=istep[1:])
+    istep = np.zeros(lin.shape, dtype=np.float32)
+    np.subtract(lin[1:], lin[:-1], out=istep[1:])
     istep[1:] *= seen_pair
     istep *= polarity[None, :]
     on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
@@ -574,6 +585,20 @@ def _vertical_features(image: np.ndarray, P: DetectorParams
     return grey, blur, tex, chroma
 
 
+def _linear_blur(image: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """The image's grey as linear light (``P.transfer`` undone per channel), blurred vertically like
+    :func:`_vertical_features`'s grey: where the sub-pixel step is placed."""
+    import cv2
+
+    lin = to_linear(image, P.transfer)
+    if lin.ndim == 3:
+        lin = cv2.cvtColor(lin, cv2.COLOR_BGR2GRAY)
+    if P.blur_sigma_px > 0:
+        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
+        lin = cv2.sepFilter2D(lin, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
+    return lin
+
+
 def texture_floor(full_scale: float, P: DetectorParams) -> float:
     """Roughness (fraction of full scale) below which a texture is quantisation: ``P.quantisation_texture_levels``
     grey levels of an integer image (``full_scale`` 255 or 65535), 0 for a float image (``full_scale`` 1)."""
@@ -631,6 +656,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         bseen &= seen[np.clip(rows, 0, H - 1), cols[None, :]]
     del rows
     grey, blur, tex, chroma = (None if a is None else a[M:-M] for a in _vertical_features(band, P))
+    lin = _linear_blur(band, P)[M:-M]
     del band
     feats, floors, step_features = _feature_stack(blur, tex, chroma)
     sky_cls, ground_cls = _bands_from_line(guide - off, Hb, P.refit_margin_px + f, P.sky_band_px)
@@ -655,8 +681,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     del node
     contrast = np.abs(mu_g - mu_s)
     sep_col = contrast / np.hypot(sd_s, sd_g)
-    y = _subpixel_line(blur, diff, b, seen_pair, polarity, sep_col, contrast, P)
-    del diff
+    y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P)
+    del diff, lin
     conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
                                   _colour_projection(feats, stats, chroma, P)), conf_c)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
