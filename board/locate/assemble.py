@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from board.locate.extraction_bias import extraction_bias_cov, extraction_bias_sigma_deg
 from board.locate.fix import Fix, FixPictures
 from board.locate.grid_error import grid_error_var, interpolation_bias_cov
 from board.locate.options import LocateOptions
@@ -51,6 +52,8 @@ def make_fix(db: SkyDB, skyline: Skyline, q: QueryModel, smap: ScoreMap | None, 
         return float(cov[idx[name], idx[name]]) if name in idx else 0.0
 
     cov = cov + interpolation_bias_cov(local, ref, info_unscaled=J.T @ J + ref.prior_info)
+    cov = cov + extraction_bias_cov(ref, info_unscaled=J.T @ J + ref.prior_info,
+                                    sigma_deg=extraction_bias_sigma_deg(skyline))
     cov_xy = np.full((2, 2), np.nan)  # heading mode: the position is given, not estimated
     if "row" in idx:
         T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)
