@@ -43,10 +43,17 @@ def _cases(run: Path, looks: set[str] | None) -> list[tuple[Path, dict]]:
     return out
 
 
-def evaluate_case(run: str, folder: str, row: dict) -> dict:
-    """Extract, locate (lost in space against the run's database) and score one panorama case."""
+def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None, transfer: str | None = None) -> dict:
+    """Extract, locate (lost in space against the run's database) and score one panorama case.
+
+    detector : :class:`board.detect.DetectorParams` fields to change (a variant of the detector);
+    transfer : the image transfer to assume instead of the manifest's (``"linear"``: the stored values).
+    """
+    from dataclasses import replace
+
+    from board.acquisition import load_panorama
     from board.conventions import wrap_deg180
-    from board.extraction import extract_from_panorama
+    from board.extraction import ExtractionOptions, extract_from_panorama
     from board.locate import locate
     from board.skydb import SkyDB
     from render_service.campaign import scoring
@@ -61,7 +68,13 @@ def evaluate_case(run: str, folder: str, row: dict) -> dict:
     tx, ty, th = float(row["true_x"]), float(row["true_y"]), float(row["true_heading_deg"])
     out = {"run": run, "case_id": row["case_id"], "preset": row["preset"], "pose": int(row["pose"]),
            "pitch_deg": pitch, "roll_deg": roll}
-    res = extract_from_panorama(fold / "panorama", azimuth_step_deg=360.0 / n, azimuth_start_deg=0.0)
+    pano = load_panorama(fold / "panorama")
+    if transfer:
+        pano.transfer = transfer
+    opts = ExtractionOptions()
+    if detector:
+        opts = replace(opts, detector=replace(opts.detector, **detector))
+    res = extract_from_panorama(pano, azimuth_step_deg=360.0 / n, azimuth_start_deg=0.0, options=opts)
     out["extract_status"] = res.status
     out["extract_s"] = res.elapsed_s
     if res.skyline is None:
@@ -145,8 +158,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the per-case rows")
     ap.add_argument("--compare", type=Path, default=None, help="an earlier --out to print beside this run")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    ap.add_argument("--detector", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a DetectorParams field for a variant of the detector (repeatable; VALUE is Python)")
+    ap.add_argument("--transfer", choices=("srgb", "linear"), default=None,
+                    help="assume this image transfer instead of the manifests' ('linear': place the line on the "
+                         "stored values, as before session 9)")
     a = ap.parse_args(argv)
     looks = {s for s in a.looks.split(",") if s} or None
+    import ast
+
+    detector = {}
+    for item in a.detector:
+        key, _, value = item.partition("=")
+        try:
+            detector[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            print(f"campaign_reextract: --detector {item!r}: use FIELD=VALUE with a Python literal", file=sys.stderr)
+            return 1
     todo = []
     for run in a.runs:
         if not (run / "db.zarr").exists() or not (run / "truth.npz").is_file():
@@ -159,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rows: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(a.jobs, 1)) as pool:
-        futs = [pool.submit(evaluate_case, *t) for t in todo]
+        futs = [pool.submit(evaluate_case, *t, detector or None, a.transfer) for t in todo]
         for i, f in enumerate(futs, 1):
             rows.append(f.result())
             print(f"\r{i}/{len(futs)} cases", end="", file=sys.stderr, flush=True)
