@@ -19,14 +19,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
-from board.pose.confidence import CHI2_2D_95
 
 
 def _cases(run: Path, looks: set[str] | None) -> list[tuple[Path, dict]]:
@@ -52,9 +49,9 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     from dataclasses import replace
 
     from board.acquisition import load_panorama
-    from board.conventions import wrap_deg180
     from board.extraction import ExtractionOptions, extract_from_panorama
     from board.locate import locate
+    from board.locate.truth import Truth, compare_with_truth
     from board.skydb import SkyDB
     from render_service.campaign import scoring
 
@@ -87,24 +84,15 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     out.update(ex)
     out["err_deg"] = (np.asarray(res.skyline.elevation_deg) - truth).tolist()
     fix = locate(db, res.skyline, mode="lost")
-    err = math.hypot(fix.x - tx, fix.y - ty)
-    herr = abs(float(wrap_deg180(fix.heading_deg - th)))
-    wrong = err > scoring.WRONG_M or herr > scoring.WRONG_HEADING_DEG
-    out.update(status=fix.status, error_m=err, heading_error_deg=herr, sigma_x_m=fix.sigma_x_m,
+    cmp = compare_with_truth(fix, Truth(tx, ty, th))
+    herr = abs(cmp.heading_error_deg)
+    wrong = cmp.error_m > scoring.WRONG_M or herr > scoring.WRONG_HEADING_DEG
+    out.update(status=fix.status, error_m=cmp.error_m, heading_error_deg=herr, sigma_x_m=fix.sigma_x_m,
                sigma_y_m=fix.sigma_y_m, wrong=bool(wrong), wrong_ok=bool(wrong and fix.status == "ok"),
-               dx=fix.x - tx, dy=fix.y - ty, reason=fix.reason, rms_residual_deg=fix.rms_residual_deg,
+               dx=cmp.dx_m, dy=cmp.dy_m, reason=fix.reason, rms_residual_deg=fix.rms_residual_deg,
                noise_deg=fix.noise_deg, fix_pitch_deg=fix.pitch_deg, fix_roll_deg=fix.roll_deg,
-               mahalanobis2=_mahalanobis2(np.asarray(fix.cov_xy, float), fix.x - tx, fix.y - ty))
+               in_ellipse95=bool(cmp.in_ellipse95))
     return out
-
-
-def _mahalanobis2(cov: np.ndarray, dx: float, dy: float) -> float:
-    """Squared Mahalanobis distance of the error (dx, dy) metres under ``cov`` (m^2); inf if singular."""
-    try:
-        d = np.array([dx, dy])
-        return float(d @ np.linalg.solve(cov, d))
-    except np.linalg.LinAlgError:
-        return math.inf
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -130,7 +118,7 @@ def summarise(rows: list[dict]) -> list[dict]:
             "within_5": float(np.sum((e <= 5.0) & (h <= 1.0)) / len(rs)),
             "ok": sum(r.get("status") == "ok" for r in rs),
             "wrong": sum(bool(r.get("wrong")) for r in rs), "wrong_ok": sum(bool(r.get("wrong_ok")) for r in rs),
-            "ok_in_ellipse": (sum(r.get("status") == "ok" and r.get("mahalanobis2", math.inf) <= CHI2_2D_95 for r in rs)
+            "ok_in_ellipse": (sum(r.get("status") == "ok" and bool(r.get("in_ellipse95")) for r in rs)
                               / max(sum(r.get("status") == "ok" for r in rs), 1)),
         })
     return out

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -308,8 +308,6 @@ def detect_skyline(image: np.ndarray, *, seen: np.ndarray | None = None, wrap: b
     if img.ndim not in (2, 3):
         raise InvalidInputError(f"an image is (H, W) or (H, W, 3), got shape {img.shape}")
     if transfer is not None:
-        from dataclasses import replace  # noqa: PLC0415
-
         params = replace(params, transfer=check_transfer(transfer))
     H, W = img.shape[:2]
     if seen is not None:
@@ -501,9 +499,10 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     clipped sky hides its half of the step and its line stays below the edge (0.1-1 px, growing with how far
     the sky exceeds full scale) on linear light as on the stored values, while the unclipped columns' line
     is right only on linear light.  That contrast varies around the circle as a displacement would (the
-    clipped arc faces the sun); on the stored values the two kinds of columns err alike, mostly as one
-    offset, which the matcher fits (session 9, held-out Aristoteles 43: realistic within 2.5 m 53 % on linear
-    light, 63-70 % on the stored values; docs/benchmarks.md)."""
+    clipped arc faces the sun).  The rule is empirical: on the Aristoteles 43 renders the stored values gave
+    better fixes in such views (realistic within 2.5 m 53 % on linear light, 63-70 % on the stored values),
+    but on an analytic partly clipped edge the contrast between the two kinds of columns is about the same
+    either way; a model of the clipped step is the proper fix (docs/benchmarks.md, session 9)."""
     # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
     # the horizon brighter than the ground while the sky as a whole is darker)
     w = P.contrast_window_px
@@ -583,14 +582,9 @@ def _vertical_features(image: np.ndarray, P: DetectorParams
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """grey, vertically blurred grey, log texture and (blurred) chroma of an image, as the detector makes them
     (vertical-only blur: a horizontal one would smear steep slopes into ramps and bias the line)."""
-    import cv2
 
     grey, full = to_grey01(image)
-    if P.blur_sigma_px > 0:
-        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
-        blur = cv2.sepFilter2D(grey, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
-    else:
-        blur = grey
+    blur = _vertical_blur(grey, P)
     tex = _texture(grey, P.texture_window_px)
     # an integer image's smooth gradient (a haze band brightening to the horizon) steps one level every
     # few rows: its second differences of +-1 level are quantisation, not texture.  Below the floor all
@@ -599,9 +593,19 @@ def _vertical_features(image: np.ndarray, P: DetectorParams
     tex += 1e-3
     np.log(tex, out=tex)
     chroma = _chroma(image) if P.use_colour else None
-    if chroma is not None and P.blur_sigma_px > 0:
-        chroma = cv2.sepFilter2D(chroma, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
+    if chroma is not None:
+        chroma = _vertical_blur(chroma, P)
     return grey, blur, tex, chroma
+
+
+def _vertical_blur(a: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """``a`` blurred along the rows (columns untouched) by a Gaussian of ``P.blur_sigma_px``; ``a`` itself when 0."""
+    import cv2
+
+    if P.blur_sigma_px <= 0:
+        return a
+    k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
+    return cv2.sepFilter2D(a, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
 
 
 def _linear_blur(image: np.ndarray, P: DetectorParams) -> np.ndarray:
@@ -612,10 +616,7 @@ def _linear_blur(image: np.ndarray, P: DetectorParams) -> np.ndarray:
     lin = to_linear(image, P.transfer)
     if lin.ndim == 3:
         lin = cv2.cvtColor(lin, cv2.COLOR_BGR2GRAY)
-    if P.blur_sigma_px > 0:
-        k = cv2.getGaussianKernel(2 * int(math.ceil(3 * P.blur_sigma_px)) + 1, P.blur_sigma_px, cv2.CV_32F)
-        lin = cv2.sepFilter2D(lin, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
-    return lin
+    return _vertical_blur(lin, P)
 
 
 def texture_floor(full_scale: float, P: DetectorParams) -> float:

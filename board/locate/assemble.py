@@ -51,9 +51,10 @@ def make_fix(db: SkyDB, skyline: Skyline, q: QueryModel, smap: ScoreMap | None, 
     def var(name):
         return float(cov[idx[name], idx[name]]) if name in idx else 0.0
 
-    cov = cov + interpolation_bias_cov(local, ref, info_unscaled=J.T @ J + ref.prior_info)
-    cov = cov + extraction_bias_cov(ref, info_unscaled=J.T @ J + ref.prior_info,
-                                    sigma_deg=extraction_bias_sigma_deg(skyline))
+    # systematic errors the residual cannot show: the database's interpolation, the extraction's smooth error
+    info_unscaled = J.T @ J + ref.prior_info
+    cov = cov + interpolation_bias_cov(local, ref, info_unscaled=info_unscaled)
+    cov = cov + extraction_bias_cov(ref, info_unscaled=info_unscaled, sigma_deg=extraction_bias_sigma_deg(skyline))
     cov_xy = np.full((2, 2), np.nan)  # heading mode: the position is given, not estimated
     if "row" in idx:
         T = np.array([[0.0, g.geotransform[1]], [g.geotransform[5], 0.0]])  # d(x, y) / d(row, col)
