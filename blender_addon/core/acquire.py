@@ -22,6 +22,7 @@ import numpy as np
 from blender_addon.core.cameras import CameraPreset
 from blender_addon.core.degrade import Degradation
 from blender_addon.core.plans import PanTiltPlan
+from blender_addon.core.sampling import sampling_meta
 from board.acquisition import Acquisition, FrameInfo, GroundTruth, write_acquisition
 from board.atomic import atomic_dir
 from board.errors import InvalidInputError
@@ -104,7 +105,7 @@ def simulation_meta(job: AcquisitionJob, *, render_pinhole: dict, dressing: dict
                  "overlap": job.plan.overlap},
         "degradation": deg.to_dict(),
         "seed": int(job.seed),
-        "samples": 1 if deg.binary else int(job.samples),
+        **sampling_meta(job.samples, binary=deg.binary),
         "denoise": bool(job.denoise),
         "render_pinhole": render_pinhole,
         "dressing": {**dressing, "sun_visible": bool(sun_visible)},

@@ -356,7 +356,8 @@ def dress_scene(terrain: MultiResTerrain, deg: Degradation, *, center_xy: tuple[
     heading_deg : rover heading, for a sun given relative to it
     seed : rocks and the Cycles sampling seed (one per acquisition)
     texture_seed : regolith texture (a property of the site: keep it fixed across acquisitions)
-    samples : Cycles samples per pixel (binary looks use 1)
+    samples : Cycles samples per pixel, at least; the noisy ones (the skyline's edge) get up to
+        :data:`~blender_addon.scene.render.ADAPTIVE_MAX_FACTOR` times more (binary looks use 1, exactly)
 
     The world and the regolith material are rebuilt only when their parameters change, so
     successive acquisitions with the same look skip Cycles' shader and sky-map updates.
@@ -370,7 +371,7 @@ def dress_scene(terrain: MultiResTerrain, deg: Degradation, *, center_xy: tuple[
         configure_binary(scene, samples=1)
         return DressingInfo(tuple(float(v) for v in sun_enu), az, el, n, n_near, 0.0)
     clear_binary(scene)
-    configure_cycles(scene, samples=samples, denoise=denoise)
+    configure_cycles(scene, samples=samples, denoise=denoise, adaptive=True)
     c = scene.cycles
     c.seed = int(seed) % (1 << 31)
     c.use_animated_seed = False

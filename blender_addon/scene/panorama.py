@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from blender_addon.core.acquire import Pose
+from blender_addon.core.sampling import sampling_meta
 from blender_addon.core.terrain_mesh import sample_height
 from blender_addon.scene import render as R
 from blender_addon.scene import state
@@ -82,7 +83,7 @@ def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset
     img = np.ascontiguousarray(img[..., ::-1])          # board.acquisition writes with OpenCV: BGR order
     meta = {"preset": deg.name, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
             "sun_azimuth_deg": info.sun_azimuth_deg, "sun_elevation_deg": info.sun_elevation_deg,
-            "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
+            **sampling_meta(samples), "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
                     "not to this equirectangular product"}
     return img, meta
 
@@ -111,7 +112,7 @@ def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLi
         if binary:
             img = render_binary_panorama(pose, height_m=height_m, width=width, path=tmp / "render.png",
                                          terrain=terrain)
-            meta = {"preset": "binary", "renderer": "blender-cycles", "samples": 1}
+            meta = {"preset": "binary", "renderer": "blender-cycles", **sampling_meta(1, binary=True)}
         else:
             img, meta = _dressed_image(terrain, pose, height_m, preset, width=width, seed=seed, samples=samples,
                                        path=tmp / "render.png")

@@ -16,6 +16,7 @@ from pathlib import Path
 import bpy  # noqa: TID251 (scene building is the bpy layer)
 import numpy as np
 
+from blender_addon.core.sampling import ADAPTIVE_MAX_FACTOR, ADAPTIVE_THRESHOLD
 from blender_addon.scene import state
 from blender_addon.scene.camera import CAMERA_NAME, set_equirect, set_perspective
 from blender_addon.scene.quiet import native_stdout_captured
@@ -29,13 +30,26 @@ BINARY_MATERIAL = "SkylocBinaryWhite"
 
 
 def configure_cycles(scene: bpy.types.Scene | None = None, *, samples: int = 16, denoise: bool = False,
-                     persistent: bool = True) -> bpy.types.Scene:
-    """Cycles on the CPU with ``samples`` per pixel; ``persistent`` keeps the BVH between renders."""
+                     persistent: bool = True, adaptive: bool = False) -> bpy.types.Scene:
+    """Cycles on the CPU with ``samples`` per pixel; ``persistent`` keeps the BVH between renders.
+
+    adaptive : ``samples`` becomes the minimum and noisy pixels get up to ``ADAPTIVE_MAX_FACTOR`` times
+        more (Cycles' adaptive sampling at ``ADAPTIVE_THRESHOLD``: :mod:`blender_addon.core.sampling`);
+        off for binary renders, whose pixels must be exact centre rays.
+    """
+    if samples < 1:
+        raise InvalidInputError(f"samples must be >= 1, got {samples}")
     scene = state.get_scene(scene)
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
-    scene.cycles.samples = int(samples)
-    scene.cycles.use_adaptive_sampling = False
+    if adaptive:
+        scene.cycles.samples = int(samples) * ADAPTIVE_MAX_FACTOR
+        scene.cycles.use_adaptive_sampling = True
+        scene.cycles.adaptive_min_samples = int(samples)
+        scene.cycles.adaptive_threshold = ADAPTIVE_THRESHOLD
+    else:
+        scene.cycles.samples = int(samples)
+        scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = bool(denoise)
     scene.render.use_persistent_data = bool(persistent)
     scene.render.resolution_percentage = 100

@@ -207,5 +207,7 @@ def test_sim_panorama_dressed_preset_is_reproducible_and_stored_bgr(tmp_path):
     assert (outs[0] / "panorama.png").read_bytes() == (outs[1] / "panorama.png").read_bytes()
     pano = load_panorama(outs[0])
     assert pano.geometry.kind == "intensity" and pano.meta["preset"] == "realistic"
+    # at least 2 rays per pixel, up to 4 x as many where Cycles still sees noise (adaptive sampling)
+    assert (pano.meta["samples"], pano.meta["samples_max"], pano.meta["adaptive"]) == (2, 8, True)
     bgr = pano.image.reshape(-1, 3).astype(float).mean(axis=0)
     assert bgr[2] > bgr[0]                                      # red above blue, in BGR storage
