@@ -40,10 +40,12 @@ def _cases(run: Path, looks: set[str] | None) -> list[tuple[Path, dict]]:
     return out
 
 
-def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None, transfer: str | None = None) -> dict:
+def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None, transfer: str | None = None,
+                  options: dict | None = None) -> dict:
     """Extract, locate (lost in space against the run's database) and score one panorama case.
 
     detector : :class:`board.detect.DetectorParams` fields to change (a variant of the detector);
+    options : :class:`board.extraction.ExtractionOptions` fields to change (such as ``clipped_sky_gain``);
     transfer : the image transfer to assume instead of the manifest's (``"linear"``: the stored values).
     """
     from dataclasses import replace
@@ -68,7 +70,7 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     pano = load_panorama(fold / "panorama")
     if transfer:
         pano.transfer = transfer
-    opts = ExtractionOptions()
+    opts = replace(ExtractionOptions(), **(options or {}))
     if detector:
         opts = replace(opts, detector=replace(opts.detector, **detector))
     res = extract_from_panorama(pano, azimuth_step_deg=360.0 / n, azimuth_start_deg=0.0, options=opts)
@@ -148,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--detector", action="append", default=[], metavar="FIELD=VALUE",
                     help="a DetectorParams field for a variant of the detector (repeatable; VALUE is Python)")
+    ap.add_argument("--option", action="append", default=[], metavar="FIELD=VALUE",
+                    help="an ExtractionOptions field for a variant of the extraction (repeatable; VALUE is Python)")
     ap.add_argument("--transfer", choices=("srgb", "linear"), default=None,
                     help="assume this image transfer instead of the manifests' ('linear': place the line on the "
                          "stored values, as before session 9)")
@@ -155,14 +159,15 @@ def main(argv: list[str] | None = None) -> int:
     looks = {s for s in a.looks.split(",") if s} or None
     import ast
 
-    detector = {}
-    for item in a.detector:
-        key, _, value = item.partition("=")
-        try:
-            detector[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            print(f"campaign_reextract: --detector {item!r}: use FIELD=VALUE with a Python literal", file=sys.stderr)
-            return 1
+    detector, options = {}, {}
+    for flag, items, into in (("--detector", a.detector, detector), ("--option", a.option, options)):
+        for item in items:
+            key, _, value = item.partition("=")
+            try:
+                into[key.strip()] = ast.literal_eval(value.strip())
+            except (ValueError, SyntaxError):
+                print(f"campaign_reextract: {flag} {item!r}: use FIELD=VALUE with a Python literal", file=sys.stderr)
+                return 1
     todo = []
     for run in a.runs:
         if not (run / "db.zarr").exists() or not (run / "truth.npz").is_file():
@@ -175,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rows: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(a.jobs, 1)) as pool:
-        futs = [pool.submit(evaluate_case, *t, detector or None, a.transfer) for t in todo]
+        futs = [pool.submit(evaluate_case, *t, detector or None, a.transfer, options or None) for t in todo]
         for i, f in enumerate(futs, 1):
             rows.append(f.result())
             print(f"\r{i}/{len(futs)} cases", end="", file=sys.stderr, flush=True)

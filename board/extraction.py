@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from board.acquisition import Acquisition, Panorama, PanoramaGeometry, load_acquisition, load_panorama
+from board.clipped_sky import CLIPPED_SHIFT_GAIN, clipped_line_offset_px
 from board.conventions import DEFAULT_N_AZIMUTH, azimuth_grid_deg
 from board.detect import Detection, DetectorParams, detect_skyline
 from board.detect.preprocess import to_grey01
@@ -56,6 +57,8 @@ class ExtractionOptions:
                                          # below which there is one class
     min_coverage_deg: float = 20.0
     min_ok_fraction: float = 0.9
+    clipped_sky_gain: float = CLIPPED_SHIFT_GAIN   # a clipped sky's line is moved up to its edge by this model
+                                                   # gain (board.clipped_sky); 0 leaves it where it was found
 
 
 @dataclass
@@ -187,7 +190,12 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
     if bottom >= 0.9:
         return _failed(f"all sky: the line sits at the bottom of the view in {100 * bottom:.0f}% of the columns "
                        "(tilt the camera down)", pano, det, diag)
-    skyline = panorama_line_to_skyline(det.line_row, geom, n_azimuth=opt.n_azimuth,
+    line = det.line_row
+    if opt.clipped_sky_gain > 0 and det.clipped_rows is not None and geom.kind != "binary":
+        # a clipped sky's line lies below its edge (board.clipped_sky)
+        line = line - clipped_line_offset_px(det.clipped_rows, geom.elevation_step_deg,
+                                             det.diagnostics.get("edge_width_px"), gain=opt.clipped_sky_gain)
+    skyline = panorama_line_to_skyline(line, geom, n_azimuth=opt.n_azimuth,
                                        azimuth_start_deg=opt.azimuth_start_deg)
     kept = float(det.valid[seen_cols].mean()) if seen_cols.any() else 0.0
     if skyline.coverage_deg < opt.min_coverage_deg:

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from board.detect.clipped_edge import clipped_run_above, edge_width_px
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
 from board.errors import InvalidInputError
@@ -73,9 +74,6 @@ class DetectorParams:
     wrap_margin_columns: int = 200
     use_colour: bool = True             # add log(blue / red) to the features of a colour image
     intensity_subpixel_separation: float = 1.5   # intensity separation above which the line is placed on the grey step
-    partial_clip_stored: bool = True    # a view whose sky is clipped at the line in part of its columns only ...
-    partial_clip_range: tuple[float, float] = (0.1, 0.9)   # ... (this share of them) has its line placed on the
-                                        # stored values in every column (see _subpixel_line)
     transfer: str = "srgb"              # the image's transfer function (board.transfer): the grey step is placed
                                         # on the linearised image, where blur and pixel area average the light
     ground_broadening: float = 0.0      # ground spread at least this fraction of the sky-ground distance (re-fits)
@@ -110,7 +108,10 @@ class Detection:
     raw_row : (W,) float, the line before masking (for debugging pictures)
     confidence : (W,) float in [0, 1]
     valid : (W,) bool, columns kept
-    diagnostics : scene-level numbers (class separation, fraction of columns at top/bottom, ...)
+    diagnostics : scene-level numbers (class separation, fraction of columns at top/bottom, the unclipped
+        steps' width ``edge_width_px``, ...)
+    clipped_rows : (W,) rows of saturated sky directly above the line (0 where the sky there is not clipped;
+        :mod:`board.detect.clipped_edge`), None when not measured
     """
 
     line_row: np.ndarray
@@ -118,6 +119,7 @@ class Detection:
     confidence: np.ndarray
     valid: np.ndarray
     diagnostics: dict = field(default_factory=dict)
+    clipped_rows: np.ndarray | None = None
 
 
 # -- features -------------------------------------------------------------------------------------
@@ -391,7 +393,11 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    y = _subpixel_line(blur, _linear_blur(image, P), diff, b, seen_pair, polarity, sep_col, contrast, P)
+    lin_raw = _linear_grey(image, P)
+    clipped = clipped_run_above(grey, b, P.saturation_level)
+    diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
+    y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P)
+    del lin_raw
     conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     no_sky = 0.0
     if chroma is not None:
@@ -421,7 +427,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
     diag["valid_fraction"] = float(valid.mean())
-    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag, clipped)
 
 
 def _initial_classes(blur: np.ndarray, seen: np.ndarray, n_seen_col: np.ndarray, edges: np.ndarray,
@@ -495,14 +501,8 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     the stored grey (the classes' units), ``lin`` the same blurred grey as linear light, where the step is
     placed (an sRGB-encoded blurred step peaks up to half a pixel towards its dark side).
 
-    Except in a view whose sky is clipped just above the line in ``P.partial_clip_range`` of the columns: a
-    clipped sky hides its half of the step and its line stays below the edge (0.1-1 px, growing with how far
-    the sky exceeds full scale) on linear light as on the stored values, while the unclipped columns' line
-    is right only on linear light.  That contrast varies around the circle as a displacement would (the
-    clipped arc faces the sun).  The rule is empirical: on the Aristoteles 43 renders the stored values gave
-    better fixes in such views (realistic within 2.5 m 53 % on linear light, 63-70 % on the stored values),
-    but on an analytic partly clipped edge the contrast between the two kinds of columns is about the same
-    either way; a model of the clipped step is the proper fix (docs/benchmarks.md, session 9)."""
+    A sky clipped above the line hides its half of the step and the line stays below the edge; the
+    extraction moves it back (:mod:`board.clipped_sky`, from the clipped band this detector counts)."""
     # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
     # the horizon brighter than the ground while the sky as a whole is darker)
     w = P.contrast_window_px
@@ -511,16 +511,8 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     below, _ = _window_mean(blur[1:], sf, b - 1, 1, w + 1)
     local = np.nan_to_num(below - above)
     polarity = np.where(local != 0, np.sign(local), polarity).astype(np.float32)
-    src = lin
-    if P.partial_clip_stored:
-        sat = (blur[:-1] >= P.saturation_level).astype(np.float32)
-        f_above, n_above = _window_mean(sat, sf, b - 1, -w + 1, 1)
-        has = n_above > 0
-        frac = float(np.mean(np.nan_to_num(f_above[has]) >= 0.5)) if has.any() else 0.0
-        if P.partial_clip_range[0] <= frac < P.partial_clip_range[1]:
-            src = blur
-    istep = np.zeros(src.shape, dtype=np.float32)
-    np.subtract(src[1:], src[:-1], out=istep[1:])
+    istep = np.zeros(lin.shape, dtype=np.float32)
+    np.subtract(lin[1:], lin[:-1], out=istep[1:])
     istep[1:] *= seen_pair
     istep *= polarity[None, :]
     on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
@@ -608,15 +600,15 @@ def _vertical_blur(a: np.ndarray, P: DetectorParams) -> np.ndarray:
     return cv2.sepFilter2D(a, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
 
 
-def _linear_blur(image: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """The image's grey as linear light (``P.transfer`` undone per channel), blurred vertically like
-    :func:`_vertical_features`'s grey: where the sub-pixel step is placed."""
+def _linear_grey(image: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """The image's grey as linear light (``P.transfer`` undone per channel).  Blurred vertically like
+    :func:`_vertical_features`'s grey, it is where the sub-pixel step is placed."""
     import cv2
 
     lin = to_linear(image, P.transfer)
     if lin.ndim == 3:
         lin = cv2.cvtColor(lin, cv2.COLOR_BGR2GRAY)
-    return _vertical_blur(lin, P)
+    return lin
 
 
 def texture_floor(full_scale: float, P: DetectorParams) -> float:
@@ -660,7 +652,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     centres = (np.arange(Wc) + 0.5) * sx - 0.5
     guide_c = (coarse.raw_row + 0.5) * sy - 0.5
     guide = np.interp(cols, centres, guide_c, period=W) if wrap else np.interp(cols, centres, guide_c)
-    conf_c = coarse.confidence[np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)]
+    col_c = np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)
+    conf_c = coarse.confidence[col_c]
+    clipped_c = coarse.clipped_rows[col_c] * sy if coarse.clipped_rows is not None else np.zeros(W)
     n_seen_col = np.full(W, H) if seen is None else seen.sum(axis=0)
     del coarse
 
@@ -676,7 +670,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         bseen &= seen[np.clip(rows, 0, H - 1), cols[None, :]]
     del rows
     grey, blur, tex, chroma = (None if a is None else a[M:-M] for a in _vertical_features(band, P))
-    lin = _linear_blur(band, P)[M:-M]
+    lin_raw = _linear_grey(band, P)
+    lin = _vertical_blur(lin_raw, P)[M:-M]
+    lin_raw = lin_raw[M:-M]
     del band
     feats, floors, step_features = _feature_stack(blur, tex, chroma)
     sky_cls, ground_cls = _bands_from_line(guide - off, Hb, P.refit_margin_px + f, P.sky_band_px)
@@ -701,6 +697,11 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     del node
     contrast = np.abs(mu_g - mu_s)
     sep_col = contrast / np.hypot(sd_s, sd_g)
+    # the clipped band above the line: counted in the band, and on the reduced copy where it fills the band
+    clipped = clipped_run_above(grey, b, P.saturation_level).astype(np.float64)
+    clipped = np.where(b - clipped <= 0, np.maximum(clipped, clipped_c), clipped)
+    diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
+    del lin_raw
     y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P)
     del diff, lin
     conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
@@ -709,7 +710,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
     diag["refined_shift_px_median"] = float(np.median(np.abs(y - guide)))
-    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag)
+    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag, clipped)
 
 
 def _empty(W: int, diag: dict) -> Detection:
