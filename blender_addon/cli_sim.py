@@ -36,7 +36,9 @@ def sim_group() -> None:
 @click.option("--preset", type=click.Choice(["clean", "realistic", "distorted"]), default=None,
               help="Dressed look instead of --binary.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures and noise.")
-@click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples for dressed looks.")
+@click.option("--samples", type=int, default=16, show_default=True,
+              help="Cycles samples per pixel for dressed looks (at least; noisy pixels such as the skyline's "
+                   "get up to 4 x more).")
 @click.option("--radius", "radius_m", type=float, default=None,
               help="Keep terrain up to this distance (m) from the rover (default: the whole DEM).")
 @body_option()

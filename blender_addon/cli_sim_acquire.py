@@ -38,7 +38,8 @@ log = logging.getLogger(__name__)
               help="Look and degradations (the report's noise levels: binary, realistic, distorted; "
                    "realistic-<body> for the Earth, the Moon, Europa; 'realistic' is the Mars look).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of rocks, textures, render and noise.")
-@click.option("--samples", type=int, default=16, show_default=True, help="Cycles samples per pixel.")
+@click.option("--samples", type=int, default=16, show_default=True,
+              help="Cycles samples per pixel (at least; noisy pixels such as the skyline's get up to 4 x more).")
 @click.option("--radius", "radius_m", type=float, default=None,
               help="Keep terrain up to this distance (m) beyond the site (default: the whole DEM).")
 @body_option()

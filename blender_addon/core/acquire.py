@@ -53,7 +53,8 @@ class Pose:
 class AcquisitionJob:
     """Everything that defines one simulated acquisition (same job, same seed: same bytes).
 
-    samples : Cycles samples per pixel; denoise : OpenImageDenoise on the render
+    samples : Cycles samples per pixel (at least: adaptive sampling, blender_addon.core.sampling);
+        denoise : OpenImageDenoise on the render
     imu_sigma_deg : standard deviation of the attitude error written as the measured attitude
     """
 

@@ -83,7 +83,8 @@ def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset
     img = np.ascontiguousarray(img[..., ::-1])          # board.acquisition writes with OpenCV: BGR order
     meta = {"preset": deg.name, "degradation": deg.to_dict(), "n_rocks": info.n_rocks,
             "sun_azimuth_deg": info.sun_azimuth_deg, "sun_elevation_deg": info.sun_elevation_deg,
-            **sampling_meta(samples), "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
+            **sampling_meta(samples),
+            "note": "lens distortion and dispersion apply to camera frames (skyloc sim acquire), "
                     "not to this equirectangular product"}
     return img, meta
 

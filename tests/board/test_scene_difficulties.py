@@ -177,7 +177,8 @@ def test_clipped_sky_line_is_moved_to_its_edge(site):
         el = res.skyline.elevation_deg
         n = el.size
         rel = np.mod(np.arange(n) * 360.0 / n + 180.0, 360.0) - 180.0
-        band = res.detection.clipped_rows[np.rint((rel - g.azimuth_col0_deg) / g.azimuth_step_deg).astype(int) % g.width]
+        cols = np.rint((rel - g.azimuth_col0_deg) / g.azimuth_step_deg).astype(int) % g.width
+        band = res.detection.clipped_rows[cols]
         err = (el - truth) / g.elevation_step_deg                     # elevation pixels, + = line too high
         kept = view & np.isfinite(err)
         clipped, plain = kept & (band > 0), kept & (band == 0)
