@@ -3,10 +3,11 @@
 Cycles' adaptive sampling: every pixel gets ``samples`` rays, and the pixels whose noise estimate is still
 above :data:`ADAPTIVE_THRESHOLD` get up to :data:`ADAPTIVE_MAX_FACTOR` times more.  The pixels that straddle
 the skyline are the noisiest of a view (a sky/ground coverage estimated from a few rays), so they get the
-extra rays; plain sky and ground stop at ``samples``.  On Aristoteles 43 (Moon, 1800 px panoramas) 8 -> up to
+extra rays; plain sky stops at ``samples``.  On Aristoteles 43 (Moon, 1800 px panoramas) 8 -> up to
 32 rays cut the clean look's median extraction error from 0.013 to 0.009 deg, for 2.5 times the render time
 of 8 rays everywhere (the regolith's texture is noisy enough to take most ground pixels to the maximum too;
-32 rays everywhere cost 4 times; docs/benchmarks.md, session 10).  Binary renders are not sampled this way: their pixels are exact centre rays.
+32 rays everywhere cost 4 times; docs/benchmarks.md, session 10; ``python -m benchmarks.bench_render_sampling``).
+Binary renders are not sampled this way: their pixels are exact centre rays.
 """
 from __future__ import annotations
 
