@@ -37,9 +37,9 @@ def case_columns(run: str, folder: str) -> dict:
 
     runp, fold = Path(run), Path(folder)
     row = json.loads((fold / "row.json").read_text())
-    poses = json.loads((runp / "poses.json").read_text())["accepted"]
-    k = [int(p["index"]) for p in poses].index(int(row["pose"]))
-    n_truth = int(json.loads((runp / "poses.json").read_text()).get("truth_n_azimuth", 3600))
+    poses_doc = json.loads((runp / "poses.json").read_text())
+    k = [int(p["index"]) for p in poses_doc["accepted"]].index(int(row["pose"]))
+    n_truth = int(poses_doc.get("truth_n_azimuth", 3600))
     truth_el = np.load(runp / "truth.npz")["elevation_deg"][k].astype(np.float64)
     pitch, roll = float(row["pitch_deg"] or 0.0), float(row["roll_deg"] or 0.0)
     truth = scoring.true_skyline(truth_el, heading_deg=float(row["true_heading_deg"]), pitch_deg=pitch,
@@ -50,11 +50,8 @@ def case_columns(run: str, folder: str) -> dict:
     if det is None or det.clipped_rows is None:
         return {"err": [], "band": [], "width": float("nan")}
     cols = np.where(np.isfinite(det.line_row))[0]
-    az = np.mod(g.azimuth_col0_deg + cols * g.azimuth_step_deg, 360.0)
-    x = az / (360.0 / n_truth)
-    i0 = np.floor(x).astype(int) % n_truth
-    t = x - np.floor(x)
-    tr = (1 - t) * truth[i0] + t * truth[(i0 + 1) % n_truth]
+    az = g.azimuth_col0_deg + cols * g.azimuth_step_deg
+    tr = np.interp(az, np.arange(n_truth) * (360.0 / n_truth), truth, period=360.0)
     el = g.elevation_row0_deg - det.line_row[cols] * g.elevation_step_deg
     err = (el - tr) / g.elevation_step_deg
     band = det.clipped_rows[cols] * g.elevation_step_deg
@@ -83,30 +80,24 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
         outs = list(ex.map(case_columns, [j[0] for j in jobs], [j[1] for j in jobs]))
-    groups: dict[tuple[str, str], list] = {}
+    cases: dict[tuple[str, str], list] = {}
     for (_, _, name, look), o in zip(jobs, outs):
         w = o["width"] if np.isfinite(o["width"]) else EDGE_WIDTH_FALLBACK_PX
-        groups.setdefault((name, look), []).append((np.asarray(o["err"]), np.asarray(o["band"]), w))
-    xs, ys = [], []
-    for key, cases in groups.items():
-        err = np.concatenate([c[0] for c in cases])
-        band = np.minimum(np.concatenate([c[1] for c in cases]), MAX_BAND_DEG)
-        w2 = np.concatenate([np.full(c[0].size, c[2] ** 2) for c in cases])
-        base = err[band == 0].mean()
-        clip = band > 0
-        xs.append(w2[clip] * band[clip])
-        ys.append(err[clip] - base)
-    x, y = np.concatenate(xs), np.concatenate(ys)
+        cases.setdefault((name, look), []).append((np.asarray(o["err"]), np.asarray(o["band"]), w))
+    # per run and look: every column's error, clipped band (capped as the model caps it), squared view width
+    groups = {key: (np.concatenate([c[0] for c in cs]),
+                    np.minimum(np.concatenate([c[1] for c in cs]), MAX_BAND_DEG),
+                    np.concatenate([np.full(c[0].size, c[2] ** 2) for c in cs]),
+                    float(np.sqrt(np.median([c[2] ** 2 for c in cs]))))
+              for key, cs in cases.items()}
+    x = np.concatenate([w2[band > 0] * band[band > 0] for _, band, w2, _ in groups.values()])
+    y = np.concatenate([err[band > 0] - err[band == 0].mean() for err, band, _, _ in groups.values()])
     fitted = float(-(x @ y) / (x @ x)) if x.size else float("nan")
     print(f"gain: current {CLIPPED_SHIFT_GAIN:.4f}, fitted on these runs {fitted:.4f} (excess = -gain * width^2 * band)")
     print("| run | look | width (px) | band (deg) | columns | excess (px) | model, current gain | model, fitted |")
     print("| --- | --- | ---: | --- | ---: | ---: | ---: | ---: |")
-    for (name, look), cases in groups.items():
-        err = np.concatenate([c[0] for c in cases])
-        band = np.minimum(np.concatenate([c[1] for c in cases]), MAX_BAND_DEG)
-        w2 = np.concatenate([np.full(c[0].size, c[2] ** 2) for c in cases])
+    for (name, look), (err, band, w2, wmed) in groups.items():
         base = err[band == 0].mean()
-        wmed = float(np.sqrt(np.median([c[2] ** 2 for c in cases])))
         for lo, hi in zip(BINS_DEG[:-1], BINS_DEG[1:]):
             m = (band >= lo) & (band < hi)
             if m.sum() < 20:
