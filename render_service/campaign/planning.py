@@ -88,20 +88,24 @@ def choose_site(profile: Profile, bounds: tuple[float, float, float, float], rng
                 area_m: float | None = None) -> Site:
     """A search area of ``profile.area_m`` inside the DEM, centred at random away from its edges.
 
-    The margin left to the DEM's edge is the larger of 300 m and 15 % of the DEM's smaller side,
-    so that horizons are not cut by the DEM's end on the near side.  Raises InvalidInputError when
-    the DEM is too small for the area.
+    The margin left to the DEM's edge is ``profile.site_margin_m`` when set, else the larger of 300 m
+    and 15 % of the DEM's smaller side, so that horizons are not cut by the DEM's end on the near side.
+    Raises InvalidInputError, with the largest area and margin that would fit, when the DEM is too small.
     """
     area = float(area_m if area_m is not None else profile.area_m)
     xmin, ymin, xmax, ymax = (float(b) for b in bounds)
     side = min(xmax - xmin, ymax - ymin)
-    margin = max(300.0, 0.15 * side)
+    margin = float(profile.site_margin_m) if profile.site_margin_m > 0 else max(300.0, 0.15 * side)
     lo_x, hi_x = xmin + margin + area / 2, xmax - margin - area / 2
     lo_y, hi_y = ymin + margin + area / 2, ymax - margin - area / 2
     if lo_x > hi_x or lo_y > hi_y:
+        fits = side - 2 * margin
+        hint = (f"a smaller area (--set area_m=M, at most {fits:.0f} m with this margin)" if fits > 0 else
+                f"a smaller margin (--set site_margin_m=M, at most {(side - area) / 2:.0f} m for this area; "
+                "horizons then end at the DEM's edge sooner)" if side > area else "a smaller area (--set area_m=M)")
         raise InvalidInputError(
             f"the DEM ({xmax - xmin:.0f} x {ymax - ymin:.0f} m) is too small for a {area:.0f} m search area with "
-            f"{margin:.0f} m of terrain around it: use a larger DEM or a smaller area (--area-m)")
+            f"{margin:.0f} m of terrain around it: use a larger DEM or {hint}")
     cx = float(rng.uniform(lo_x, hi_x))
     cy = float(rng.uniform(lo_y, hi_y))
     # snap the centre to the step so that grids of several runs line up; the poses stay off the grid

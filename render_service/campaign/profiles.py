@@ -35,6 +35,9 @@ class Profile:
     large_area_m : also a lost-in-space search over this area side (``full``; 0 = none)
     min_relief_deg : a pose is used only where the true horizon rises this much above its lowest point
     camera_height_m : mast height for panoramas and databases (acquisitions use the camera's)
+    site_margin_m : terrain kept between the search area and the DEM's edge (metres); 0 = automatic, the
+        larger of 300 m and 15 % of the DEM's smaller side.  Smaller margins let rover-scale DEMs (a few
+        hundred metres) be used, with horizons that end at the DEM's edge sooner
     """
 
     name: str
@@ -70,6 +73,7 @@ class Profile:
     large_area_m: float = 0.0
     min_relief_deg: float = 1.0
     camera_height_m: float = 2.05
+    site_margin_m: float = 0.0
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict:
@@ -114,6 +118,8 @@ def get_profile(name: str, **overrides) -> Profile:
     p = replace(p, **kw)
     if p.n_poses < 1 or p.area_m <= 0 or p.step_m <= 0:
         raise InvalidInputError(f"profile {p.name}: n_poses >= 1, area_m > 0 and step_m > 0 are needed")
+    if p.site_margin_m < 0:
+        raise InvalidInputError(f"site_margin_m = {p.site_margin_m:g}: use 0 (automatic) or a margin in metres")
     from blender_addon.core.cameras import PRESETS as CAMERAS  # noqa: PLC0415
     from blender_addon.core.degrade import PRESETS as LOOKS  # noqa: PLC0415
 

@@ -21,6 +21,7 @@ import math
 import os
 import platform
 import resource
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -113,6 +114,17 @@ def _check_arguments(out: Path, args: dict) -> None:
         _write_json(p, {"format": "skyloc-campaign", "version": CAMPAIGN_VERSION, "arguments": args})
 
 
+def _forget_refused(out: Path, out_existed: bool, fresh: bool) -> None:
+    """Remove what a campaign refused before its first render wrote: the folder if this run made it,
+    else the ``campaign.json`` it started (a refused run leaves nothing half-written behind)."""
+    if not fresh:
+        return
+    if not out_existed:
+        shutil.rmtree(out, ignore_errors=True)
+    else:
+        (out / "campaign.json").unlink(missing_ok=True)
+
+
 def run_campaign(opt: CampaignOptions) -> dict:
     """Run (or resume) a campaign; returns the summary (also written to ``summary.json``).
 
@@ -135,18 +147,22 @@ def run_campaign(opt: CampaignOptions) -> dict:
     profile = get_profile(opt.profile, **ov)
     out = Path(opt.out).resolve()
     args = {"dem": str(opt.dem), "profile": profile.to_dict(), "seed": int(opt.seed), "body": opt.body}
+    out_existed, fresh = out.exists(), not (out / "campaign.json").exists()
     _check_arguments(out, json.loads(json.dumps(args, default=_json_default)))
+    try:
+        from blender_addon.terrain.dem import dem_info, resolve_dem  # noqa: PLC0415
 
-    from blender_addon.terrain.dem import dem_info, resolve_dem  # noqa: PLC0415
-
-    spec = _dem_spec(opt.dem, profile)
-    dem_path = resolve_dem(spec, cache_dir=out / "dem")
-    info = dem_info(dem_path, body=opt.body)
-    say(f"campaign {profile.name}: DEM {spec} ({info.body.name}, {info.size[0]} x {info.size[1]} cells of "
-        f"{info.cell_m:g} m, sha256 {info.sha256[:12]}), seed {opt.seed} -> {out}")
-    site = planning.choose_site(profile, info.bounds,
-                                np.random.default_rng(np.random.SeedSequence([int(opt.seed) & 0xFFFFFFFF, 0x5173])),
-                                area_m=max(profile.area_m, profile.large_area_m))
+        spec = _dem_spec(opt.dem, profile)
+        dem_path = resolve_dem(spec, cache_dir=out / "dem")
+        info = dem_info(dem_path, body=opt.body)
+        say(f"campaign {profile.name}: DEM {spec} ({info.body.name}, {info.size[0]} x {info.size[1]} cells of "
+            f"{info.cell_m:g} m, sha256 {info.sha256[:12]}), seed {opt.seed} -> {out}")
+        site = planning.choose_site(profile, info.bounds,
+                                    np.random.default_rng(np.random.SeedSequence([int(opt.seed) & 0xFFFFFFFF, 0x5173])),
+                                    area_m=max(profile.area_m, profile.large_area_m))
+    except Exception:
+        _forget_refused(out, out_existed, fresh)
+        raise
     site = planning.Site(site.center_x, site.center_y, profile.area_m, site.step_m, site.dem_bounds)
     say(f"  site: {profile.area_m:g} x {profile.area_m:g} m at {profile.step_m:g} m centred on "
         f"({site.center_x:.1f}, {site.center_y:.1f}) (metres, the DEM's metric CRS)")

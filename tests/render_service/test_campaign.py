@@ -71,6 +71,46 @@ def test_site_inside_the_dem_with_margin_and_refused_when_too_small():
         _site(prof, (0.0, 0.0, 1200.0, 1200.0))
 
 
+def test_site_margin_can_be_set_and_the_refusal_says_what_fits():
+    """A rover-scale DEM (350 m) fits only with a smaller margin; the message names the setting that fits."""
+    bounds = (0.0, 0.0, 348.0, 337.0)
+    small = get_profile("report", area_m=100.0, step_m=1.0)
+    with pytest.raises(InvalidInputError, match=r"site_margin_m=M, at most 118 m"):
+        _site(small, bounds)
+    prof = get_profile("report", area_m=100.0, step_m=1.0, site_margin_m=100.0)
+    for seed in range(10):
+        s = _site(prof, bounds, seed)
+        assert 150.0 - 0.5 <= s.center_x <= 348.0 - 150.0 + 0.5 and 150.0 - 0.5 <= s.center_y <= 337.0 - 150.0 + 0.5
+    # with the margin fixed, a too large area is refused with the largest that fits
+    with pytest.raises(InvalidInputError, match=r"area_m=M, at most 137 m"):
+        _site(get_profile("report", area_m=200.0, site_margin_m=100.0), bounds)
+    with pytest.raises(InvalidInputError, match="site_margin_m"):
+        get_profile("report", site_margin_m=-1.0)
+
+
+def test_a_refused_campaign_leaves_nothing_behind(tmp_path):
+    """Bad input exits 1 with the reason, and neither the output folder nor a campaign.json is left."""
+    gdal = pytest.importorskip("osgeo.gdal")
+    dem = tmp_path / "small.tif"
+    ds = gdal.GetDriverByName("GTiff").Create(str(dem), 60, 60, 1, gdal.GDT_Float32)
+    ds.SetGeoTransform((500000.0, 5.0, 0.0, 4000000.0, 0.0, -5.0))
+    ds.SetProjection("EPSG:32610")
+    ds.GetRasterBand(1).WriteArray(np.random.default_rng(0).normal(0.0, 5.0, (60, 60)).astype(np.float32))
+    ds = None
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "skyloc.cli", "campaign", "--dem", str(dem), "--profile", "report",
+                        "--out", str(out), "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1
+    assert "too small" in r.stderr + r.stdout and "--set" in r.stderr + r.stdout
+    assert not out.exists()
+    # a folder that existed stays, without the campaign.json the refused run started
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    r = subprocess.run([sys.executable, "-m", "skyloc.cli", "campaign", "--dem", str(dem), "--profile", "report",
+                        "--out", str(out), "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
 def test_case_plan_covers_the_tables_and_reuses_existing_sources():
     prof = get_profile("report", n_poses=3, n_window_poses=3, n_heading_poses=2, n_acquisitions=2)
     cases = planning.plan_cases(prof, 3)
