@@ -99,14 +99,32 @@ def _json_default(o):
     raise TypeError(type(o).__name__)
 
 
+def _with_profile_defaults(args: dict) -> dict:
+    """``args`` of an earlier campaign.json with the profile fields added since at their defaults
+    (a campaign started before a field existed ran as its default: it resumes)."""
+    from dataclasses import MISSING, fields  # noqa: PLC0415
+
+    from render_service.campaign.profiles import Profile  # noqa: PLC0415
+
+    prof = args.get("profile")
+    if not isinstance(prof, dict):
+        return args
+    defaults = {f.name: f.default for f in fields(Profile) if f.default is not MISSING and f.name not in prof}
+    return {**args, "profile": {**prof, **json.loads(json.dumps(defaults, default=_json_default))}}
+
+
 def _check_arguments(out: Path, args: dict) -> None:
     """Refuse to resume a campaign of other arguments into the same folder."""
     p = out / "campaign.json"
     if p.is_file():
         old = json.loads(p.read_text())
-        if old.get("arguments") != args:
-            diff = sorted(k for k in set(old.get("arguments", {})) | set(args)
-                          if old.get("arguments", {}).get(k) != args.get(k))
+        prev = _with_profile_defaults(old.get("arguments", {}))
+        if prev != args:
+            diff = sorted(k for k in set(prev) | set(args) if prev.get(k) != args.get(k))
+            if "profile" in diff and isinstance(prev.get("profile"), dict) and isinstance(args.get("profile"), dict):
+                a, b = prev["profile"], args["profile"]
+                diff[diff.index("profile")] = "profile: " + ", ".join(sorted(k for k in set(a) | set(b)
+                                                                              if a.get(k) != b.get(k)))
             raise InvalidInputError(f"{out} holds a campaign run with other arguments ({', '.join(diff)} differ): "
                                     "use another --out, or the same arguments to resume it")
     else:

@@ -415,3 +415,25 @@ def test_poses_option_leaves_the_tables_7_and_8_counts_that_set_names():
     assert o == {}
     o = profile_overrides(["n_heading_poses=0", "samples=8"], poses=5, acquisitions=2, pano_width=None, samples=None)
     assert (o["n_heading_poses"], o["n_window_poses"], o["n_acquisitions"], o["samples"]) == (0, 5, 2, 8)
+
+
+def test_a_campaign_started_before_a_profile_field_existed_resumes(tmp_path):
+    """campaign.json of an earlier version (a profile field missing) resumes when the field is at its default;
+    another value of any field is refused with that field named."""
+    from render_service.campaign.runner import _check_arguments
+
+    args = {"dem": "x.tif", "profile": get_profile("report").to_dict(), "seed": 1, "body": None}
+    args = json.loads(json.dumps(args))
+    older = json.loads(json.dumps(args))
+    del older["profile"]["site_margin_m"]
+    (tmp_path / "campaign.json").write_text(json.dumps({"format": "skyloc-campaign", "version": 1,
+                                                        "arguments": older}))
+    _check_arguments(tmp_path, args)  # resumes
+    changed = json.loads(json.dumps(args))
+    changed["profile"]["site_margin_m"] = 50.0
+    with pytest.raises(InvalidInputError, match=r"profile: site_margin_m"):
+        _check_arguments(tmp_path, changed)
+    changed = json.loads(json.dumps(args))
+    changed["profile"]["samples"] = 32
+    with pytest.raises(InvalidInputError, match=r"profile: samples"):
+        _check_arguments(tmp_path, changed)
