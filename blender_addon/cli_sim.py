@@ -31,7 +31,11 @@ def sim_group() -> None:
 @click.option("--pitch", "pitch_deg", type=float, default=0.0, show_default=True, help="Pitch, degrees (nose up +).")
 @click.option("--roll", "roll_deg", type=float, default=0.0, show_default=True,
               help="Roll, degrees (right side down +).")
-@click.option("--width", type=int, default=2048, show_default=True, help="Panorama width, pixels (height = width/2).")
+@click.option("--width", type=int, default=2048, show_default=True,
+              help="Panorama width, pixels (height = width/2 for the whole sphere).")
+@click.option("--band", default="-90,90", show_default=True,
+              help="BOTTOM,TOP elevations (degrees, mast frame) the panorama covers, e.g. -45,45: only the rows "
+                   "where the skyline can be are rendered (square pixels; the bottom widens to a whole row).")
 @click.option("--binary", is_flag=True, help="Terrain white, sky black (the report's noise level 1).")
 @click.option("--preset", type=click.Choice(["clean", "realistic", "distorted"]), default=None,
               help="Dressed look instead of --binary.")
@@ -44,7 +48,7 @@ def sim_group() -> None:
 @body_option()
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output panorama folder.")
 def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_deg: float, pitch_deg: float,
-                 roll_deg: float, width: int, binary: bool, preset: str | None, seed: int, samples: int,
+                 roll_deg: float, width: int, band: str, binary: bool, preset: str | None, seed: int, samples: int,
                  radius_m: float | None, body: str | None, out_dir: str) -> None:
     """Render an equirectangular panorama at a pose and write it as a panorama folder."""
     from tqdm import tqdm
@@ -57,6 +61,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         raise InvalidInputError("choose --binary or --preset clean|realistic|distorted")
     if height_m < 0:
         raise InvalidInputError(f"--height must be >= 0 m, got {height_m}")
+    band_deg = _parse_band(band)
     with tqdm(total=3, desc="sim panorama", unit="step", disable=None) as bar:
         c = site(dem, at, "--at", crs=crs, body=body)
         path, (x, y) = c.dem_path, c.xy_m
@@ -71,10 +76,24 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         bar.update(1)
         pose = Pose(x, y, heading_deg, pitch_deg, roll_deg)
         out = make_panorama(terrain, pose, out_dir, height_m=height_m, width=width, binary=binary, preset=preset,
-                            seed=seed, samples=samples, dem=str(dem), build=False)
+                            seed=seed, samples=samples, dem=str(dem), build=False, elevation_range_deg=band_deg)
         bar.update(1)
-    click.echo(f"wrote {Path(out)}: {width} x {width // 2} {'binary' if binary else preset} panorama at "
+    from board.acquisition import load_panorama
+
+    g = load_panorama(out).geometry
+    click.echo(f"wrote {Path(out)}: {g.width} x {g.height} {'binary' if binary else preset} panorama at "
                f"{c.describe()}, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
+
+
+def _parse_band(text: str) -> tuple[float, float]:
+    """``--band BOTTOM,TOP`` -> (bottom, top) degrees, checked."""
+    try:
+        bottom, top = (float(v) for v in str(text).split(","))
+    except ValueError:
+        raise InvalidInputError(f"--band {text!r}: give BOTTOM,TOP in degrees, e.g. --band=-45,45") from None
+    if not -90.0 <= bottom < top <= 90.0:
+        raise InvalidInputError(f"--band {text}: need -90 <= BOTTOM < TOP <= 90 degrees, e.g. --band=-45,45")
+    return bottom, top
 
 
 def register(group: click.Group) -> None:

@@ -29,28 +29,63 @@ from board.errors import InvalidInputError
 log = logging.getLogger(__name__)
 
 
-def panorama_geometry(width: int, *, binary: bool) -> PanoramaGeometry:
-    """Full-sphere geometry of ``width`` x ``width / 2`` pixels, heading in the middle."""
+#: The whole sphere: elevations (degrees) of the bottom and top edges of a full panorama.
+FULL_SPHERE_DEG = (-90.0, 90.0)
+
+
+def panorama_band(width: int, elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> tuple[int, float, float]:
+    """Rows and pixel-edge elevations (degrees, mast frame) of a panorama ``width`` pixels wide over a band.
+
+    Pixels are square (``360 / width`` degrees): the band is widened outwards to a whole number of rows
+    (the bottom edge moves down, at most one row).  Returns ``(height, bottom_deg, top_deg)``.
+    """
     if width < 8 or width % 2:
         raise InvalidInputError(f"panorama width must be an even number >= 8 pixels, got {width}")
-    return PanoramaGeometry.full_circle(width, width // 2, elevation_top_deg=90.0, elevation_bottom_deg=-90.0,
+    bottom, top = (float(v) for v in elevation_range_deg)
+    if not (-90.0 <= bottom < top <= 90.0):
+        raise InvalidInputError(f"panorama elevation band {bottom:g}..{top:g} deg: give bottom < top within "
+                                "-90..90 degrees (mast frame), e.g. -45,45")
+    step = 360.0 / width
+    height = int(np.ceil((top - bottom) / step - 1e-6))
+    height = max(1, min(height, int(np.floor((top + 90.0) / step + 1e-6))))   # never below the nadir
+    return height, top - height * step, top
+
+
+def panorama_geometry(width: int, *, binary: bool,
+                      elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> PanoramaGeometry:
+    """Geometry of a 360-degree panorama ``width`` pixels wide, heading in the middle, square pixels.
+
+    elevation_range_deg : bottom and top edges (degrees above the mast's horizontal); the default is the
+        whole sphere (``width`` x ``width / 2``).  A band (e.g. -45..45) renders only the rows where the
+        skyline can be, for a fraction of the render time; the rows outside are not in the image.
+    """
+    height, bottom, top = panorama_band(width, elevation_range_deg)
+    return PanoramaGeometry.full_circle(width, height, elevation_top_deg=top, elevation_bottom_deg=bottom,
                                         azimuth_start_deg=-180.0, azimuth_reference="heading",
                                         kind="binary" if binary else "intensity")
 
 
 def render_binary_panorama(pose: Pose, *, height_m: float, width: int, path: str | os.PathLike,
-                           terrain: MultiResTerrain | None = None) -> np.ndarray:
+                           terrain: MultiResTerrain | None = None,
+                           elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> np.ndarray:
     """Render a binary (terrain 255, sky 0) panorama of the current scene; returns the uint8 image.
 
     The scene must already hold the terrain (:func:`build_terrain`); the eye is ``height_m`` above the
     ground under the rover, which ``terrain`` gives (default: above the scene origin).
+    elevation_range_deg : the band rendered (:func:`panorama_geometry`).
     """
-    geom = panorama_geometry(width, binary=True)
+    geom = panorama_geometry(width, binary=True, elevation_range_deg=elevation_range_deg)
     z = _eye_z(pose, height_m, terrain)
     place_camera(pose.x, pose.y, z, pose.heading_deg, pose.pitch_deg, pose.roll_deg)
     R.configure_binary(samples=1)
-    p = R.render_equirect(path, width=geom.width, height=geom.height)
+    p = R.render_equirect(path, width=geom.width, height=geom.height, el_range_deg=_edges(geom))
     return (R.read_image(p) >= 0.5).astype(np.uint8) * 255
+
+
+def _edges(geom: PanoramaGeometry) -> tuple[float, float]:
+    """Bottom and top pixel-edge elevations (degrees) of a panorama geometry."""
+    half = geom.elevation_step_deg / 2.0
+    return (float(geom.el_of_row(geom.height - 1)) - half, float(geom.el_of_row(0)) + half)
 
 
 def _eye_z(pose: Pose, height_m: float, terrain: MultiResTerrain | None) -> float:
@@ -59,11 +94,12 @@ def _eye_z(pose: Pose, height_m: float, terrain: MultiResTerrain | None) -> floa
     return sample_height(terrain, pose.x, pose.y) + height_m
 
 
-def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset, *, width: int, seed: int,
-                   samples: int, path: Path) -> tuple[np.ndarray, dict]:
+def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset, *, geom: PanoramaGeometry,
+                   seed: int, samples: int, path: Path) -> tuple[np.ndarray, dict]:
     """Intensity panorama with H5b's dressing (regolith, rocks, sky, sun) and sensor noise.
 
     preset : a preset name or a :class:`~blender_addon.core.degrade.Degradation`
+    geom : the panorama's geometry (:func:`panorama_geometry`: width and elevation band)
     """
     from blender_addon.core import degrade
     from blender_addon.scene import dressing
@@ -72,7 +108,8 @@ def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset
     info = dressing.dress_scene(terrain, deg, center_xy=(pose.x, pose.y), heading_deg=pose.heading_deg,
                                 seed=seed, samples=samples)
     place_camera(pose.x, pose.y, _eye_z(pose, height_m, terrain), pose.heading_deg, pose.pitch_deg, pose.roll_deg)
-    p = R.render_equirect(path, width=width, height=width // 2, color_mode="RGB", color_depth="16")
+    p = R.render_equirect(path, width=geom.width, height=geom.height, el_range_deg=_edges(geom), color_mode="RGB",
+                          color_depth="16")
     lin = degrade.decode_render(R.read_image(p))
     lin = degrade.apply_exposure(lin, deg.sensor.exposure_ev) if deg.sensor.exposure_ev else lin
     if deg.lens.blur_px > 0:
@@ -91,7 +128,8 @@ def _dressed_image(terrain: MultiResTerrain, pose: Pose, height_m: float, preset
 
 def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLike, *, height_m: float,
                   width: int = 2048, binary: bool = True, preset=None, seed: int = 0, samples: int = 16,
-                  dem: str = "", build: bool = True) -> Path:
+                  dem: str = "", build: bool = True,
+                  elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> Path:
     """Build the scene (unless ``build`` is False), render and write a panorama folder atomically.
 
     pose : the rover pose (:class:`blender_addon.core.acquire.Pose`); height_m : the eye (mast) height above
@@ -100,6 +138,8 @@ def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLi
     binary : the report's noise level 1 (terrain white, sky black); otherwise ``preset``
         (clean | realistic | distorted, H5b's dressing, or a ``Degradation`` such as a preset with
         another sun) gives an intensity image.
+    elevation_range_deg : bottom and top of the rendered band (degrees, mast frame; default the whole
+        sphere); rows outside it are not in the panorama (:func:`panorama_geometry`).
     Returns the folder path.
     """
     out = Path(out_dir)
@@ -109,13 +149,13 @@ def make_panorama(terrain: MultiResTerrain, pose: Pose, out_dir: str | os.PathLi
         state.reset_scene()
         build_terrain(terrain)
     with atomic_dir(out) as tmp:
-        geom = panorama_geometry(width, binary=binary)
+        geom = panorama_geometry(width, binary=binary, elevation_range_deg=elevation_range_deg)
         if binary:
             img = render_binary_panorama(pose, height_m=height_m, width=width, path=tmp / "render.png",
-                                         terrain=terrain)
+                                         terrain=terrain, elevation_range_deg=elevation_range_deg)
             meta = {"preset": "binary", "renderer": "blender-cycles", **sampling_meta(1, binary=True)}
         else:
-            img, meta = _dressed_image(terrain, pose, height_m, preset, width=width, seed=seed, samples=samples,
+            img, meta = _dressed_image(terrain, pose, height_m, preset, geom=geom, seed=seed, samples=samples,
                                        path=tmp / "render.png")
         (tmp / "render.png").unlink(missing_ok=True)
         z = sample_height(terrain, pose.x, pose.y) + height_m

@@ -25,6 +25,9 @@ class Profile:
         ``camera_width`` pixels), in the ``acq_preset`` look; ``acq_tilt_every`` makes every k-th
         acquisition tilted by ``tilt_deg`` (pitch then roll)
     pano_width, samples : equirectangular panorama width (pixels) and Cycles samples of dressed looks
+    pano_band_deg : bottom and top elevations (degrees, mast frame) the panoramas cover; the whole sphere
+        by default.  A band such as -45,45 renders half the rows (the ground below it is the costly part
+        of a dressed render); azimuths whose true horizon falls outside it count as not seen
     window_m, window_step_m, window_prior_max_m, window_presets : table 7, a window database
         around a prior that is up to ``window_prior_max_m`` off the truth
     heading_offsets_m, heading_window_deg, heading_presets : table 8, the heading-only mode with
@@ -74,6 +77,7 @@ class Profile:
     min_relief_deg: float = 1.0
     camera_height_m: float = 2.05
     site_margin_m: float = 0.0
+    pano_band_deg: tuple[float, ...] = (-90.0, 90.0)
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict:
@@ -133,7 +137,11 @@ def get_profile(name: str, **overrides) -> Profile:
         raise InvalidInputError(f"camera {p.camera!r} is not a camera preset: use {', '.join(CAMERAS)}")
     if p.pano_width < 64 or p.pano_width % 2:
         raise InvalidInputError(f"panorama width {p.pano_width} must be an even number of at least 64 pixels")
-    return p
+    band = tuple(float(v) for v in p.pano_band_deg)
+    if len(band) != 2 or not -90.0 <= band[0] < band[1] <= 90.0:
+        raise InvalidInputError(f"pano_band_deg {p.pano_band_deg}: give BOTTOM,TOP elevations in degrees with "
+                                "-90 <= BOTTOM < TOP <= 90, e.g. --set pano_band_deg=-45,45")
+    return replace(p, pano_band_deg=band)
 
 
 def parse_setting(text: str) -> tuple[str, object]:

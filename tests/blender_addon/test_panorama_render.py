@@ -5,7 +5,8 @@
 * a flat plain on a small sphere seen from a camera far from the scene origin: the horizon dips
   by acos(R / (R + h)) in every direction (curvature and the camera's local vertical);
 * a real DEM: the binary panorama agrees with the ray-marcher within 1 px;
-* `skyloc sim panorama --binary` writes a valid panorama folder.
+* `skyloc sim panorama --binary` writes a valid panorama folder;
+* a band render (only the rows where the skyline can be) is the whole sphere's rows, pixel for pixel.
 """
 from __future__ import annotations
 
@@ -145,6 +146,61 @@ def test_sim_panorama_cli_writes_a_valid_binary_folder(tmp_path):
     assert pano.truth.pitch_deg == 6.0 and pano.truth.roll_deg == -5.0
     bad = CliRunner().invoke(main, [*args[:-3], "--preset", "clean", "--binary", "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 1 and not (tmp_path / "bad").exists()
+
+
+def test_a_band_is_the_whole_spheres_rows_pixel_for_pixel(tmp_path):
+    """Binary renders are centre rays: the band -45..45 of a 256 px panorama is rows 32..95 of the whole
+    sphere's, exactly; and its skyline is where the analytic ray-caster puts it."""
+    from blender_addon.scene.panorama import panorama_band, panorama_geometry
+
+    terrain = _crater_terrain()
+    S.reset_scene()
+    S.build_terrain(terrain, refine=False)
+    x, y, heading, pitch, roll = -6.0, 4.0, 120.0, -5.0, 8.0
+    z = sample_height(terrain, x, y) + 1.5
+    S.place_camera(x, y, z, heading, pitch, roll)
+    S.configure_binary()
+    w = 256
+    full = S.read_image(S.render_equirect(tmp_path / "full.png", width=w, height=w // 2))
+    g = panorama_geometry(w, binary=True, elevation_range_deg=(-45.0, 45.0))
+    assert (g.height, g.el_of_row(0), g.el_of_row(g.height - 1)) == (64, pytest.approx(45 - 0.703125),
+                                                                      pytest.approx(-45 + 0.703125))
+    band = S.read_image(S.render_equirect(tmp_path / "band.png", width=w, height=g.height,
+                                          el_range_deg=(-45.0, 45.0)))
+    np.testing.assert_array_equal(band, full[32:96])
+    t = band >= 0.5
+    first = np.argmax(t, axis=0)                                # the band starts in the sky everywhere here
+    assert not t[0].any() and t[-1].all()
+    got = 45.0 - first * 90.0 / g.height
+    alphas = -180.0 + (np.arange(w) + 0.5) * 360.0 / w
+    ref = _reference_boundary(np.array([x, y, z]), rotation_enu_from_camera(heading, pitch, roll), alphas)
+    assert np.abs(got - ref).max() <= g.elevation_step_deg
+    # a band that is not a whole number of square pixels widens downwards, but never past the nadir
+    assert panorama_band(w, (-44.0, 45.0)) == (64, -45.0, 45.0)
+    h, bottom, top = panorama_band(w, (-90.0, 10.0))                # 71.1 rows: 71, the nadir not passed
+    assert (h, top) == (71, 10.0) and bottom == pytest.approx(-89.84375)
+
+
+def test_sim_panorama_cli_renders_a_band_and_refuses_a_bad_one(tmp_path):
+    from click.testing import CliRunner
+
+    from board.acquisition import load_panorama
+    from skyloc.cli import main
+
+    env = {"XDG_CACHE_HOME": str(tmp_path / "cache")}
+    base = ["sim", "panorama", "--dem", "procedural:mars:3:2000:10", "--at", "50,-30", "--heading", "45",
+            "--width", "128", "--binary"]
+    res = CliRunner().invoke(main, [*base, "--band=-22.5,33.75", "--out", str(tmp_path / "band")], env=env)
+    assert res.exit_code == 0, res.output
+    assert "128 x 20" in res.output
+    full = CliRunner().invoke(main, [*base, "--out", str(tmp_path / "full")], env=env)
+    assert full.exit_code == 0, full.output
+    b, f = load_panorama(tmp_path / "band"), load_panorama(tmp_path / "full")
+    assert b.geometry.el_of_row(0) == pytest.approx(33.75 - 1.40625)
+    np.testing.assert_array_equal(b.image, f.image[20:40])      # 90 - 33.75 = 20 rows of 2.8125 deg
+    for bad in ("--band=10,-10", "--band=-95,10", "--band=low,high"):
+        r = CliRunner().invoke(main, [*base, bad, "--out", str(tmp_path / "bad")], env=env)
+        assert r.exit_code == 1 and "--band" in r.output and not (tmp_path / "bad").exists()
 
 
 def test_perspective_frame_matches_the_camera_model(tmp_path):

@@ -137,6 +137,13 @@ def test_profile_settings_are_typed_and_checked():
         get_profile("ci", t5_presets=("sepia",))
     with pytest.raises(InvalidInputError, match="unknown campaign profile"):
         get_profile("huge")
+    # the panoramas' elevation band: typed as floats, checked, whole sphere by default
+    key, band = parse_setting("pano_band_deg=-45,45")
+    assert get_profile("ci", **{key: band}).pano_band_deg == (-45.0, 45.0)
+    assert get_profile("report").pano_band_deg == (-90.0, 90.0)
+    for bad in ((45.0, -45.0), (-100.0, 10.0), (-10.0,), (0.0, 0.0)):
+        with pytest.raises(InvalidInputError, match="pano_band_deg"):
+            get_profile("ci", pano_band_deg=bad)
 
 
 def test_relief_and_off_grid_distance():
