@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import bpy  # noqa: TID251 (extension layer)
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, PointerProperty,
+                       StringProperty)
 
 CAMERA_ITEMS = [
     ("exomars", "ExoMars NavCam", "1024 x 1024 px, 65 deg, mast 2.05 m"),
@@ -42,6 +43,11 @@ class SKYLOC_PG_settings(bpy.types.PropertyGroup):
     preset: EnumProperty(name="Look", items=PRESET_ITEMS, default="binary")
     seed: IntProperty(name="Seed", default=0, min=0)
     pano_width: IntProperty(name="Panorama width", default=2048, min=64, max=16384)
+    pano_band_deg: FloatVectorProperty(name="Elevation band",
+                                       description="Bottom and top elevations (degrees, mast frame) the panorama "
+                                                   "covers; -90, 90 is the whole sphere, a band such as -45, 45 "
+                                                   "renders only the rows where the skyline can be",
+                                       size=2, default=(-90.0, 90.0), min=-90.0, max=90.0)
     out_dir: StringProperty(name="Output", description="Folder for products", default="//skyloc_out",
                             subtype="DIR_PATH")
     db_size_m: FloatProperty(name="Grid size", description="Side of the database grid (m)", default=200.0, min=0.0)

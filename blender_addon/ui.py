@@ -76,6 +76,7 @@ class SKYLOC_PT_products(_SkylocPanel, bpy.types.Panel):
         col.prop(s, "frame_width")
         col.operator(SKYLOC_OT_acquire.bl_idname, icon="RENDER_STILL")
         col.prop(s, "pano_width")
+        col.prop(s, "pano_band_deg")
         col.operator(SKYLOC_OT_render_panorama.bl_idname, icon="WORLD")
 
 

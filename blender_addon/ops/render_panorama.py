@@ -23,7 +23,8 @@ class SKYLOC_OT_render_panorama(bpy.types.Operator):
                 binary = s.preset == "binary"
                 out = make_panorama(terrain, bridge.pose(s), bridge.out_dir(s) / "panorama",
                                     height_m=float(s.mast_height_m), width=int(s.pano_width) // 2 * 2, binary=binary,
-                                    preset=None if binary else s.preset, seed=int(s.seed), dem=s.dem, build=False)
+                                    preset=None if binary else s.preset, seed=int(s.seed), dem=s.dem, build=False,
+                                    elevation_range_deg=tuple(float(v) for v in s.pano_band_deg))
                 prog.update(1.0, "panorama written")
         except Exception as exc:  # noqa: BLE001 (reported to the user)
             return bridge.fail(self, "Render panorama", exc)

@@ -176,6 +176,17 @@ def test_operators_run_end_to_end(crater_tif, tmp_path):
         assert s.status == f"panorama written to {tmp_path / 'out' / 'panorama'}"
         pano = load_panorama(tmp_path / "out" / "panorama")
         assert pano.geometry.width == 128 and pano.truth.heading_deg == 30.0
+        assert pano.geometry.height == 64
+        # the elevation band: only its rows are rendered; a reversed band is refused with what to do
+        s.pano_band_deg = (-45.0, 45.0)
+        assert bpy.ops.skyloc.render_panorama() == {"FINISHED"}
+        pano = load_panorama(tmp_path / "out" / "panorama")
+        assert pano.geometry.height == 32 and pano.geometry.el_of_row(0) == pytest.approx(45.0 - 1.40625)
+        s.pano_band_deg = (30.0, -30.0)
+        with pytest.raises(RuntimeError, match="bottom < top"):
+            bpy.ops.skyloc.render_panorama()
+        assert load_panorama(tmp_path / "out" / "panorama").geometry.height == 32   # the last good one stays
+        s.pano_band_deg = (-90.0, 90.0)
         s.frames, s.arc_deg, s.frame_width, s.preset = 2, 130.0, 48, "binary"
         terrain_objects = {o.as_pointer() for o in bpy.data.collections["SkylocTerrain"].objects}
         assert bpy.ops.skyloc.acquire() == {"FINISHED"}
