@@ -2,8 +2,15 @@
 from __future__ import annotations
 
 import bpy  # noqa: TID251 (extension layer)
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, PointerProperty,
-                       StringProperty)
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 CAMERA_ITEMS = [
     ("exomars", "ExoMars NavCam", "1024 x 1024 px, 65 deg, mast 2.05 m"),
