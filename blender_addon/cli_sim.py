@@ -69,7 +69,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         bar.update(1)
         from blender_addon.core.acquire import Pose
         from blender_addon.scene import build_terrain, reset_scene
-        from blender_addon.scene.panorama import make_panorama
+        from blender_addon.scene.panorama import make_panorama, panorama_geometry
 
         reset_scene()
         build_terrain(terrain)
@@ -78,9 +78,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
         out = make_panorama(terrain, pose, out_dir, height_m=height_m, width=width, binary=binary, preset=preset,
                             seed=seed, samples=samples, dem=str(dem), build=False, elevation_range_deg=band_deg)
         bar.update(1)
-    from board.acquisition import load_panorama
-
-    g = load_panorama(out).geometry
+    g = panorama_geometry(width, binary=binary, elevation_range_deg=band_deg)   # what was written, not re-read
     click.echo(f"wrote {Path(out)}: {g.width} x {g.height} {'binary' if binary else preset} panorama at "
                f"{c.describe()}, heading {heading_deg:g}, pitch {pitch_deg:g}, roll {roll_deg:g} deg")
 

@@ -36,8 +36,9 @@ FULL_SPHERE_DEG = (-90.0, 90.0)
 def panorama_band(width: int, elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> tuple[int, float, float]:
     """Rows and pixel-edge elevations (degrees, mast frame) of a panorama ``width`` pixels wide over a band.
 
-    Pixels are square (``360 / width`` degrees): the band is widened outwards to a whole number of rows
-    (the bottom edge moves down, at most one row).  Returns ``(height, bottom_deg, top_deg)``.
+    Pixels are square (``360 / width`` degrees): the band is widened to a whole number of rows (the bottom
+    edge moves down, by less than one row), except at the nadir, which it never passes (there the band loses
+    the fraction of a row instead).  Returns ``(height, bottom_deg, top_deg)``.
     """
     if width < 8 or width % 2:
         raise InvalidInputError(f"panorama width must be an even number >= 8 pixels, got {width}")

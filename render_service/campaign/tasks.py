@@ -137,7 +137,7 @@ def render_panorama_case(ctx: CampaignContext, case: dict, cand: dict, pitch: fl
                   height_m=ctx.camera_height_m, width=int(p["pano_width"]), binary=deg.binary,
                   preset=None if deg.binary else deg, seed=int(cand["texture_seed"]), samples=int(p["samples"]),
                   dem=ctx.dem_spec, build=False,
-                  elevation_range_deg=tuple(p.get("pano_band_deg", (-90.0, 90.0))))
+                  elevation_range_deg=tuple(p["pano_band_deg"]))
     return time.perf_counter() - t0
 
 
