@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from blender_addon.cli_options import at_option, body_option, crs_option, dem_option, site
+from blender_addon.core.band import checked_band
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
@@ -85,13 +86,7 @@ def panorama_cmd(dem: str, at: str, crs: str | None, height_m: float, heading_de
 
 def _parse_band(text: str) -> tuple[float, float]:
     """``--band BOTTOM,TOP`` -> (bottom, top) degrees, checked."""
-    try:
-        bottom, top = (float(v) for v in str(text).split(","))
-    except ValueError:
-        raise InvalidInputError(f"--band {text!r}: give BOTTOM,TOP in degrees, e.g. --band=-45,45") from None
-    if not -90.0 <= bottom < top <= 90.0:
-        raise InvalidInputError(f"--band {text}: need -90 <= BOTTOM < TOP <= 90 degrees, e.g. --band=-45,45")
-    return bottom, top
+    return checked_band(str(text).split(","), what="--band", example="--band=-45,45")
 
 
 def register(group: click.Group) -> None:

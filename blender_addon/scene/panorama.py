@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from blender_addon.core.acquire import Pose
+from blender_addon.core.band import FULL_SPHERE_DEG, panorama_band
 from blender_addon.core.sampling import sampling_meta
 from blender_addon.core.terrain_mesh import sample_height
 from blender_addon.scene import render as R
@@ -27,29 +28,6 @@ from board.atomic import atomic_dir
 from board.errors import InvalidInputError
 
 log = logging.getLogger(__name__)
-
-
-#: The whole sphere: elevations (degrees) of the bottom and top edges of a full panorama.
-FULL_SPHERE_DEG = (-90.0, 90.0)
-
-
-def panorama_band(width: int, elevation_range_deg: tuple[float, float] = FULL_SPHERE_DEG) -> tuple[int, float, float]:
-    """Rows and pixel-edge elevations (degrees, mast frame) of a panorama ``width`` pixels wide over a band.
-
-    Pixels are square (``360 / width`` degrees): the band is widened to a whole number of rows (the bottom
-    edge moves down, by less than one row), except at the nadir, which it never passes (there the band loses
-    the fraction of a row instead).  Returns ``(height, bottom_deg, top_deg)``.
-    """
-    if width < 8 or width % 2:
-        raise InvalidInputError(f"panorama width must be an even number >= 8 pixels, got {width}")
-    bottom, top = (float(v) for v in elevation_range_deg)
-    if not (-90.0 <= bottom < top <= 90.0):
-        raise InvalidInputError(f"panorama elevation band {bottom:g}..{top:g} deg: give bottom < top within "
-                                "-90..90 degrees (mast frame), e.g. -45,45")
-    step = 360.0 / width
-    height = int(np.ceil((top - bottom) / step - 1e-6))
-    height = max(1, min(height, int(np.floor((top + 90.0) / step + 1e-6))))   # never below the nadir
-    return height, top - height * step, top
 
 
 def panorama_geometry(width: int, *, binary: bool,

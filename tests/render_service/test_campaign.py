@@ -140,7 +140,16 @@ def test_profile_settings_are_typed_and_checked():
     # the panoramas' elevation band: typed as floats, checked, whole sphere by default
     key, band = parse_setting("pano_band_deg=-45,45")
     assert get_profile("ci", **{key: band}).pano_band_deg == (-45.0, 45.0)
-    assert get_profile("report").pano_band_deg == (-90.0, 90.0)
+    assert get_profile("ci").pano_band_deg == (-90.0, 90.0)
+    # the report's panoramas: 0.1 deg pixels from 45 deg below the horizontal to the zenith (no alpine
+    # horizon is cut), the band the simulator renders with square pixels
+    from blender_addon.scene.panorama import panorama_band
+
+    rep = get_profile("report")
+    height, bottom, top = panorama_band(rep.pano_width, rep.pano_band_deg)
+    assert 360.0 / rep.pano_width <= 0.1 and top == 90.0 and -46.0 < bottom <= -45.0
+    assert height == pytest.approx((top - bottom) * rep.pano_width / 360.0)
+    assert get_profile("full").pano_band_deg == rep.pano_band_deg
     for bad in ((45.0, -45.0), (-100.0, 10.0), (-10.0,), (0.0, 0.0)):
         with pytest.raises(InvalidInputError, match="pano_band_deg"):
             get_profile("ci", pano_band_deg=bad)
