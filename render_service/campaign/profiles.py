@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
 from board.errors import InvalidInputError
 
 
@@ -77,7 +78,7 @@ class Profile:
     min_relief_deg: float = 1.0
     camera_height_m: float = 2.05
     site_margin_m: float = 0.0
-    pano_band_deg: tuple[float, ...] = (-90.0, 90.0)
+    pano_band_deg: tuple[float, ...] = FULL_SPHERE_DEG
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict:
@@ -144,8 +145,6 @@ def get_profile(name: str, **overrides) -> Profile:
         raise InvalidInputError(f"camera {p.camera!r} is not a camera preset: use {', '.join(CAMERAS)}")
     if p.pano_width < 64 or p.pano_width % 2:
         raise InvalidInputError(f"panorama width {p.pano_width} must be an even number of at least 64 pixels")
-    from blender_addon.core.band import checked_band  # noqa: PLC0415
-
     band = checked_band(p.pano_band_deg, what="pano_band_deg", example="--set pano_band_deg=-45,45")
     return replace(p, pano_band_deg=band)
 

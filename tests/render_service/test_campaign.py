@@ -143,7 +143,7 @@ def test_profile_settings_are_typed_and_checked():
     assert get_profile("ci").pano_band_deg == (-90.0, 90.0)
     # the report's panoramas: 0.1 deg pixels from 45 deg below the horizontal to the zenith (no alpine
     # horizon is cut), the band the simulator renders with square pixels
-    from blender_addon.scene.panorama import panorama_band
+    from blender_addon.core.band import panorama_band
 
     rep = get_profile("report")
     height, bottom, top = panorama_band(rep.pano_width, rep.pano_band_deg)
