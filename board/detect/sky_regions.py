@@ -11,7 +11,9 @@ the line look like sky and the region below like ground:
    sector (the sunlit side of a hill can be brighter than the sky, the shaded side darker),
    spread to every column by linear interpolation between sector centres, give a per-pixel sky
    probability ``p`` (naive Bayes; smoothness gives at most ``smooth_evidence_cap`` of sky
-   evidence: hazy distant terrain is smooth too).  First split: Otsu on grey per sector, the
+   evidence: hazy distant terrain is smooth too; intensity and colour are clipped to the interval
+   between the two class centres first, so that a value beyond the sky's centre, such as a sun halo brighter
+   than a smooth sky, counts as sky and not as the wider ground class).  First split: Otsu on grey per sector, the
    sky class being the one that fills the top of the picture, replaced by the top and bottom
    bands of the view in the sectors where it contradicts them; then the classes are re-fitted
    on the two sides of the detected line and the line detected again.
@@ -98,6 +100,10 @@ class DetectorParams:
                                                 # again from classes that start from the pixels' colour
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
+    monotone_classes: bool = True       # intensity or colour beyond a class's centre (away from the other class) counts
+                                        # as that class, never as the other: a sun halo brighter than the sky is sky
+    coarse_contrast_cap: bool = False   # True: the reduced copy's step-contrast check also caps the full-resolution
+                                        # confidence (before session 15; now only its wide-window checks do)
 
 
 @dataclass
@@ -120,6 +126,7 @@ class Detection:
     valid: np.ndarray
     diagnostics: dict = field(default_factory=dict)
     clipped_rows: np.ndarray | None = None
+    context_confidence: np.ndarray | None = None
 
 
 # -- features -------------------------------------------------------------------------------------
@@ -229,19 +236,24 @@ def _fit_sectors(f: np.ndarray, mask: np.ndarray, edges: np.ndarray, floor: floa
 
 def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, floors: list[float],
                edges: np.ndarray, min_pixels: int, wrap: bool, caps: list[float | None] | None = None,
-               broaden: float = 0.0) -> tuple[np.ndarray, list]:
+               broaden: float = 0.0, monotone: list[bool] | None = None) -> tuple[np.ndarray, list]:
     """Log-likelihood ratio sky vs ground (float32, (H, W)), naive Bayes with one Gaussian per class,
     feature and azimuth sector.  Returns the LLR and, per feature, (mu_sky, sd_sky, mu_ground, sd_ground)
     as per-column arrays plus the global fits.
 
     caps : per feature, the largest sky evidence it may give (None: no cap).  Smoothness is capped:
     a smooth patch may be sky or hazy distant terrain, while a rough one is ground.
+    monotone : per feature, True to clip it to the interval between the two class centres first, so that
+    the ratio is monotone in it (two Gaussians of unequal spreads would otherwise give a value far beyond
+    the narrow class, such as a sun halo brighter than a smooth sky, to the wide one).
     """
     llr = np.zeros(feats[0].shape, dtype=np.float32)
     tmp = np.empty_like(llr)
+    monotone = monotone or [False] * len(feats)
+    fc = np.empty_like(llr) if any(monotone) else None
     stats = []
     caps = caps or [None] * len(feats)
-    for f, floor, cap in zip(feats, floors, caps):
+    for f, floor, cap, mono in zip(feats, floors, caps, monotone):
         ms, ss, gs = _fit_sectors(f, sky, edges, floor, min_pixels, wrap)
         mg, sg, gg = _fit_sectors(f, ground, edges, floor, min_pixels, wrap)
         stats.append((ms, ss, mg, sg, gs, gg))
@@ -253,8 +265,12 @@ def _class_llr(feats: list[np.ndarray], sky: np.ndarray, ground: np.ndarray, flo
             continue
         # term = -0.5 ((f - ms) / ss)^2 + 0.5 ((f - mg) / sg)^2 + log(sg / ss), in place (float32)
         term = np.zeros_like(llr) if cap is not None else llr
+        if mono:
+            np.clip(f, np.minimum(ms, mg).astype(np.float32)[None, :], np.maximum(ms, mg).astype(np.float32)[None, :],
+                    out=fc)
+        fx = fc if mono else f
         for mu, sd, sign in ((ms, ss, -0.5), (mg, sg, 0.5)):
-            np.subtract(f, mu.astype(np.float32)[None, :], out=tmp)
+            np.subtract(fx, mu.astype(np.float32)[None, :], out=tmp)
             tmp *= (1.0 / sd).astype(np.float32)[None, :]
             np.multiply(tmp, tmp, out=tmp)
             tmp *= np.float32(sign)
@@ -351,7 +367,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     for it in range(max(1, P.iterations)):
         p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
                               caps=[None, P.smooth_evidence_cap, None][:len(feats)],
-                              broaden=P.ground_broadening if it > 0 else 0.0)
+                              broaden=P.ground_broadening if it > 0 else 0.0, monotone=_monotone(len(feats), P))
         _sky_probability(p)
         mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
         if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
@@ -398,7 +414,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P)
     del lin_raw
-    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     no_sky = 0.0
     if chroma is not None:
         c_colour, offset, g_ref = _sky_colour_unlike_ground(chroma, seen, b, P)
@@ -406,6 +422,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         no_sky = float(np.mean(c_colour[n_seen_col > 0] < 0.5)) if (n_seen_col > 0).any() else 0.0
         diag["sky_coloured_like_ground_fraction"] = no_sky
         np.minimum(conf, c_colour, out=conf)
+        np.minimum(context, c_colour, out=context)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if init_classes is None and no_sky >= P.colour_second_pass_fraction:
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
@@ -427,7 +444,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
     diag["valid_fraction"] = float(valid.mean())
-    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag, clipped)
+    return Detection(np.where(valid, y, np.nan), y, conf, valid, diag, clipped, context)
 
 
 def _initial_classes(blur: np.ndarray, seen: np.ndarray, n_seen_col: np.ndarray, edges: np.ndarray,
@@ -480,6 +497,13 @@ def _feature_stack(blur: np.ndarray, tex: np.ndarray, chroma: np.ndarray | None
     if chroma is None:
         return [blur, tex], [0.01, 0.05], [0]
     return [blur, tex, chroma], [0.01, 0.05, 0.01], [0, 2]
+
+
+def _monotone(n_features: int, P: DetectorParams) -> list[bool]:
+    """Which of :func:`_feature_stack`'s features the class likelihoods are made monotone in: intensity and
+    colour when ``P.monotone_classes``, never the roughness (one-sided, its sky class at the floor: made
+    monotone it moved the line of dark lunar skies by 0.003 deg and nothing else)."""
+    return [P.monotone_classes, False, P.monotone_classes][:n_features]
 
 
 def _sky_probability(llr: np.ndarray) -> np.ndarray:
@@ -622,9 +646,13 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     about ``P.max_direct_pixels``), then at full resolution in a band of rows around that line: the
     features, the classes re-fitted on the two sides of the coarse line (per sector, as in the re-fit of
     the direct detector), the node costs, the smooth path (its jumps counted in image rows, exactly), the
-    sub-pixel position and the column confidence, which is also capped by the coarse one (whose windows
-    see ``f`` times further: a hazy ridge far above the line, a glare patch).  Only the reduced copy and
-    the band are ever held as float images."""
+    sub-pixel position and the column confidence, which is also capped by the coarse one's wide-window
+    checks (region consistency, glare and saturation, a step above the line, the sky's colour: their
+    windows see ``f`` times further, a hazy ridge far above the line, a glare patch), but not by its step
+    contrast unless ``P.coarse_contrast_cap``: the reduced copy's classes are fitted over whole sectors,
+    where a sunlit face brighter than the sky and the shaded ground below it mix, and the step at the
+    skyline can run against their polarity where the band's classes, fitted next to the line, measure
+    it right.  Only the reduced copy and the band are ever held as float images."""
     import cv2
 
     H, W = img.shape[:2]
@@ -653,7 +681,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     guide_c = (coarse.raw_row + 0.5) * sy - 0.5
     guide = np.interp(cols, centres, guide_c, period=W) if wrap else np.interp(cols, centres, guide_c)
     col_c = np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)
-    conf_c = coarse.confidence[col_c]
+    cap_c = coarse.confidence if P.coarse_contrast_cap or coarse.context_confidence is None else coarse.context_confidence
+    conf_c = cap_c[col_c]
+    del cap_c
     clipped_c = coarse.clipped_rows[col_c] * sy if coarse.clipped_rows is not None else np.zeros(W)
     n_seen_col = np.full(W, H) if seen is None else seen.sum(axis=0)
     del coarse
@@ -682,7 +712,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         return _empty(W, diag | {"reason": "one class only"})
     edges = _sector_edges(W, P.n_sectors)
     p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
-                          caps=[None, P.smooth_evidence_cap, None][:len(feats)], broaden=P.ground_broadening)
+                          caps=[None, P.smooth_evidence_cap, None][:len(feats)], broaden=P.ground_broadening,
+                          monotone=_monotone(len(feats), P))
     del sky_cls, ground_cls
     _sky_probability(p)
     mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
@@ -704,8 +735,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     del lin_raw
     y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P)
     del diff, lin
-    conf = np.minimum(_confidence(grey, proj, p, bseen, b, sd_proj_sky, P,
-                                  _colour_projection(feats, stats, chroma, P)), conf_c)
+    conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    np.minimum(conf, conf_c, out=conf)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
@@ -788,8 +819,11 @@ def _no_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: Detecto
 
 
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
-                sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None) -> np.ndarray:
-    """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring).
+                sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring) and the
+    same without the step-contrast and seen-rows checks: the checks whose windows look beyond the step
+    (region consistency, saturation and glare, a step above the line).
 
     proj : the discriminant image (sky 0, ground 1 per column); sigma_sky : its sky spread;
     colour_proj : the same scaling of the colour feature alone (None for grey images)."""
@@ -832,11 +866,12 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
         # make the intensity-and-colour discriminant of the ground strip between them look like sky,
         # while its colour is plainly the ground's
         c_above = np.minimum(c_above, _no_step_above(colour_proj, seen, b, P))
+    context = np.nan_to_num(np.minimum.reduce([c_region, c_sat, c_above]), nan=0.0)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
               "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
               np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5))
-    return np.nan_to_num(conf, nan=0.0)
+    return np.nan_to_num(conf, nan=0.0), context
 
 
 def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams

@@ -352,6 +352,73 @@ def test_sunlit_strip_brighter_than_the_sky_above_a_shaded_slope_is_ground(param
     assert wrong.sum() >= 10  # without the colour-only check the line follows the lower step, kept
 
 
+# a sky drawn up to 60 deg, so that a halo is a small part of its sector (as on a real panorama)
+TALL = PanoramaGeometry.full_circle(1200, 400, elevation_top_deg=60.0, elevation_bottom_deg=-15.0)
+
+
+def _halo_scene(seed: int, *, sigma_deg: float, amplitude: float, above_deg: float):
+    """A smooth sky (grey 0.50-0.55, noise 0.005) over textured darker ground (0.35 +- 0.06), with a sun
+    halo (Gaussian, ``amplitude`` of full scale) centred ``above_deg`` above the skyline at azimuth 90."""
+    f = SkylineFunction.random(seed)
+    img = synth_panorama(TALL, f, look=SceneLook(sky_top=0.5, sky_horizon=0.55, ground=0.35, texture=0.06),
+                         noise_sigma=0.005, seed=seed)
+    az, el = TALL.azimuths_deg()[None, :], TALL.elevations_deg()[:, None]
+    d2 = ((az - 90.0 + 180.0) % 360.0 - 180.0) ** 2 + (el - f(np.array([90.0]))[0] - above_deg) ** 2
+    sky = el > f(TALL.azimuths_deg())[None, :]
+    img = np.where(sky, img + amplitude * np.exp(-d2 / (2 * sigma_deg ** 2)), img)
+    return _u8(img), _truth_rows(f, TALL)
+
+
+@pytest.mark.parametrize("seed,sigma,amplitude,above", [(3, 5.0, 0.25, 8.0), (8, 6.0, 0.3, 10.0), (11, 4.0, 0.3, 6.0)])
+def test_sun_halo_brighter_than_the_sky_is_sky(seed, sigma, amplitude, above):
+    """A halo 0.25-0.3 brighter than a smooth sky (spread 0.005) over rough ground (spread 0.06): with one
+    Gaussian per class the halo is more likely under the wide ground class, and the line went round the
+    halo (80-130 rows above the skyline, masked: 75-100 % of the halo's 30 degrees lost).  With the classes
+    monotone, a value beyond the sky's centre is sky: the skyline under the halo is found and kept."""
+    img, rows = _halo_scene(seed, sigma_deg=sigma, amplitude=amplitude, above_deg=above)
+    near = np.abs((TALL.azimuths_deg() - 90.0 + 180.0) % 360.0 - 180.0) < 15.0
+    # coarse to fine also masks a few short runs of the reduced copy here, halo or not (its 8-bit sky
+    # gradient reads as slightly rough): 0.85-0.92 of the halo's azimuths kept, 0.95-0.98 of all
+    for P, near_min, all_min in ((DIRECT, 0.95, 0.98), (DetectorParams(max_direct_pixels=TALL.width * TALL.height // 4),
+                                                        0.8, 0.95)):
+        det = detect_skyline(img, wrap=True, params=P)
+        assert det.valid[near].mean() >= near_min and det.valid.mean() >= all_min
+        assert np.nanmax(np.abs(det.line_row - rows)) <= 1.0
+    before = detect_skyline(img, wrap=True, params=replace(DIRECT, monotone_classes=False))
+    assert before.valid[near].mean() <= 0.5                   # the control: the halo was taken for ground
+    assert np.nanmax(np.abs(before.raw_row[near] - rows[near])) >= 40
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_sunlit_face_brighter_than_the_sky_over_shaded_ground_is_kept_coarse_to_fine(seed):
+    """A sunlit face 60 rows deep (11 deg), brighter than the sky, over shaded ground, in one 36-deg sector.
+    The reduced copy's classes are fitted over the whole sector, where the shaded ground is most of the
+    ground: the step at the skyline runs against their polarity and its contrast check fails.  The band
+    at full resolution sees mostly the sunlit face below the line and measures the step right: its
+    confidence decides, the reduced copy's wide-window checks (glare, a step above, region) still cap it."""
+    g = PanoramaGeometry.full_circle(1200, 400, elevation_top_deg=45.0, elevation_bottom_deg=-30.0)
+    rng = np.random.default_rng(seed)
+    f = SkylineFunction.random(seed)
+    rows = _truth_rows(f, g)
+    H, W = g.height, g.width
+    r = np.arange(H)[:, None] + 0.5
+    sector = (np.arange(W) > 300) & (np.arange(W) < 420)
+    # BGR: a pale sky; a tan sunlit face brighter than it; the same soil in shade
+    sky, sunlit, shaded = np.array([0.62, 0.55, 0.50]), np.array([0.62, 0.78, 0.92]), np.array([0.22, 0.26, 0.30])
+    img = np.broadcast_to(sky, (H, W, 3)) * (1 + 0.05 * r / H)[..., None]
+    tex = 0.02 * rng.standard_normal((H, W, 1))
+    img = np.where((r >= rows[None, :])[..., None], shaded + tex, img)
+    face = (r >= rows[None, :]) & (r < rows[None, :] + np.where(sector, 60.0, 0.0)[None, :])
+    img = _u8(np.where(face[..., None], sunlit + tex, img) + 0.01 * rng.standard_normal((H, W, 3)))
+    c2f = DetectorParams(max_direct_pixels=W * H // 4)
+    det = detect_skyline(img, wrap=True, params=c2f)
+    assert det.diagnostics["pyramid_factor"] == 2
+    assert det.valid[sector].mean() >= 0.9 and det.valid.mean() >= 0.98
+    assert np.nanmax(np.abs(det.line_row - rows)) <= 1.5
+    capped = detect_skyline(img, wrap=True, params=replace(c2f, coarse_contrast_cap=True))
+    assert capped.valid[sector].mean() <= 0.5          # the control: the reduced copy's contrast masked it
+
+
 def test_line_on_the_local_grey_step_under_a_haze_band(params):
     """A noise-free sky brightening towards the horizon (haze), in 8 bits, over sunlit ground: the sky as a
     whole is darker than the ground, the sky just above the line as bright as it.  The sub-pixel line must

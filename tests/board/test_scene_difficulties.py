@@ -76,24 +76,24 @@ def _check(res, truth, view, *, min_kept: float, max_median_deg: float = 0.25, m
 
 def test_haze_and_dust_gradient(site):
     deg = replace(degrade.get_degradation("realistic"), sky=SkyParams(dust_tau=1.5))
-    _check(*_render(site, "dust", _case("realistic"), degradation=deg), min_kept=0.7)
+    _check(*_render(site, "dust", _case("realistic"), degradation=deg), min_kept=0.9)
 
 
 def test_sun_and_halo_in_view(site):
     # a low sun straight ahead: its halo touches the horizon on a clear and on a dusty sky
     for preset in ("clean", "realistic"):
-        _check(*_render(site, f"sun_{preset}", _case(preset, sun_az_rel=0.0, sun_el=10.0)), min_kept=0.7)
+        _check(*_render(site, f"sun_{preset}", _case(preset, sun_az_rel=0.0, sun_el=10.0)), min_kept=0.9)
 
 
 def test_dark_lunar_sky(site):
-    # airless: shaded slopes are as black as the sky there, an unmeasurable boundary that must be masked
-    # (about a third of the azimuths at this pose with a 20-degree sun)
-    _check(*_render(site, "lunar", _case("clean", sun_el=20.0), dark_sky=True), min_kept=0.55)
+    # airless: where shaded slopes are as black as the sky the boundary cannot be measured and is masked
+    # (a third of the azimuths at this pose with a 20-degree sun in session 3, 4.4 % in session 15)
+    _check(*_render(site, "lunar", _case("clean", sun_el=20.0), dark_sky=True), min_kept=0.85)
 
 
 def test_bright_sky_as_grey_as_sunlit_ground(site):
     # the clean look: a bright blue-white sky, the regolith in front of it about as bright in grey
-    _check(*_render(site, "bright", _case("clean", sun_el=55.0)), min_kept=0.8)
+    _check(*_render(site, "bright", _case("clean", sun_el=55.0)), min_kept=0.9)
 
 
 def test_over_exposure(site):
@@ -109,7 +109,7 @@ def test_under_exposure(site):
 
 def test_vignetting_and_dispersion(site):
     # the distorted look's optics applied per 45-degree frame tile: channel misregistration, light fall-off
-    _check(*_render(site, "optics", _case("distorted")), min_kept=0.7)
+    _check(*_render(site, "optics", _case("distorted")), min_kept=0.9)
 
 
 def test_sensor_noise(site):
@@ -120,12 +120,12 @@ def test_sensor_noise(site):
 def test_low_contrast_distant_ridges(site):
     # thick dust fades the distant ridges towards the sky: they are kept right or masked, never replaced
     deg = replace(degrade.get_degradation("realistic"), sky=SkyParams(dust_tau=3.0))
-    _check(*_render(site, "faint", _case("realistic"), degradation=deg), min_kept=0.5)
+    _check(*_render(site, "faint", _case("realistic"), degradation=deg), min_kept=0.8)
 
 
 def test_tilted_mast(site):
     for name, kw in (("pitch", {"pitch": 10.0}), ("roll", {"roll": -10.0})):
-        _check(*_render(site, name, _case("clean", **kw)), min_kept=0.7)
+        _check(*_render(site, name, _case("clean", **kw)), min_kept=0.9)
 
 
 def test_near_rocks_do_not_give_wrong_columns(site):
