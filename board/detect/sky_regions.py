@@ -118,6 +118,9 @@ class Detection:
         steps' width ``edge_width_px``, ...)
     clipped_rows : (W,) rows of saturated sky directly above the line (0 where the sky there is not clipped;
         :mod:`board.detect.clipped_edge`), None when not measured
+    context_confidence : (W,) the confidence's wide-window checks alone (region, glare and saturation, a step
+        above the line, the sky's colour; not the step contrast): what a reduced copy passes on to the band
+        of a coarse-to-fine detection; None when not measured
     """
 
     line_row: np.ndarray
@@ -681,9 +684,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     guide_c = (coarse.raw_row + 0.5) * sy - 0.5
     guide = np.interp(cols, centres, guide_c, period=W) if wrap else np.interp(cols, centres, guide_c)
     col_c = np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)
-    cap_c = coarse.confidence if P.coarse_contrast_cap or coarse.context_confidence is None else coarse.context_confidence
-    conf_c = cap_c[col_c]
-    del cap_c
+    wide_only = not P.coarse_contrast_cap and coarse.context_confidence is not None
+    conf_c = (coarse.context_confidence if wide_only else coarse.confidence)[col_c]
     clipped_c = coarse.clipped_rows[col_c] * sy if coarse.clipped_rows is not None else np.zeros(W)
     n_seen_col = np.full(W, H) if seen is None else seen.sum(axis=0)
     del coarse

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
+from blender_addon.core.cameras import get_preset
 from board.errors import InvalidInputError
 
 
@@ -94,6 +95,12 @@ class Profile:
 #: render, no skyline) is not rendered, and the sky above is cheap and never cuts an alpine horizon.
 REPORT_BAND_DEG = (-45.0, 90.0)
 
+#: The report profile's NavCam frames: the ExoMars NavCam's own 1024 px (65 deg, 0.063 deg per pixel).  At
+#: 512 px the lunar acquisitions of Aristoteles 45 had 60 % of the fixes within 2.5 m, at 1024 px 80 % (the
+#: rest `ambiguous`), the extraction error halved (docs/benchmarks.md, session 15); a frame costs about 4.5
+#: times as much to render.
+NAVCAM_WIDTH = get_preset("exomars").width
+
 PROFILES: dict[str, Profile] = {
     "ci": Profile(
         name="ci", area_m=400.0, step_m=10.0, procedural_size_m=8000.0, procedural_res_m=10.0,
@@ -106,14 +113,15 @@ PROFILES: dict[str, Profile] = {
     "report": Profile(
         name="report", area_m=1000.0, step_m=5.0, procedural_size_m=20000.0, procedural_res_m=5.0,
         n_poses=30, t4_presets=("binary", "clean", "realistic", "distorted"), t5_presets=("binary", "clean"),
-        tilt_deg=10.0, n_acquisitions=10, camera="exomars", camera_width=512, frames=13, acq_preset="realistic",
+        tilt_deg=10.0, n_acquisitions=10, camera="exomars", camera_width=NAVCAM_WIDTH, frames=13,
+        acq_preset="realistic",
         pano_width=3600, samples=8, pano_band_deg=REPORT_BAND_DEG, window_m=40.0, window_step_m=1.0,
         window_prior_max_m=20.0, window_presets=("binary", "realistic"), n_window_poses=30,
         heading_offsets_m=(0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0), heading_window_deg=10.0,
         heading_presets=("binary", "realistic"), n_heading_poses=30, acq_tilt_every=3,
         notes=("the report's protocol (section 12) at 30 poses per look",)),
 }
-PROFILES["full"] = replace(PROFILES["report"], name="full", robustness=True, large_area_m=7000.0, camera_width=1024,
+PROFILES["full"] = replace(PROFILES["report"], name="full", robustness=True, large_area_m=7000.0,
                            notes=("report + the robustness sets + the 7 x 7 km lost-in-space area (for a cluster)",))
 
 

@@ -150,6 +150,12 @@ def test_profile_settings_are_typed_and_checked():
     assert 360.0 / rep.pano_width <= 0.1 and top == 90.0 and -46.0 < bottom <= -45.0
     assert height == pytest.approx((top - bottom) * rep.pano_width / 360.0)
     assert get_profile("full").pano_band_deg == rep.pano_band_deg
+    # ... and its NavCam frames at the camera's own resolution (0.063 deg per pixel for the ExoMars NavCam)
+    from blender_addon.core.cameras import get_preset
+
+    cam = get_preset(rep.camera)
+    assert rep.camera_width == cam.width and cam.hfov_deg / rep.camera_width < 0.07
+    assert get_profile("full").camera_width == rep.camera_width
     for bad in ((45.0, -45.0), (-100.0, 10.0), (-10.0,), (0.0, 0.0)):
         with pytest.raises(InvalidInputError, match="pano_band_deg"):
             get_profile("ci", pano_band_deg=bad)
