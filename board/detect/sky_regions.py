@@ -369,8 +369,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     sky_cls, ground_cls = sky0, ground0
     for it in range(max(1, P.iterations)):
         p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
-                              caps=[None, P.smooth_evidence_cap, None][:len(feats)],
-                              broaden=P.ground_broadening if it > 0 else 0.0, monotone=_monotone(len(feats), P))
+                              broaden=P.ground_broadening if it > 0 else 0.0, **_feature_likelihoods(len(feats), P))
         _sky_probability(p)
         mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]
         if not (np.isfinite(glob_s[0]) and np.isfinite(glob_g[0])):
@@ -502,11 +501,13 @@ def _feature_stack(blur: np.ndarray, tex: np.ndarray, chroma: np.ndarray | None
     return [blur, tex, chroma], [0.01, 0.05, 0.01], [0, 2]
 
 
-def _monotone(n_features: int, P: DetectorParams) -> list[bool]:
-    """Which of :func:`_feature_stack`'s features the class likelihoods are made monotone in: intensity and
-    colour when ``P.monotone_classes``, never the roughness (one-sided, its sky class at the floor: made
-    monotone it moved the line of dark lunar skies by 0.003 deg and nothing else)."""
-    return [P.monotone_classes, False, P.monotone_classes][:n_features]
+def _feature_likelihoods(n_features: int, P: DetectorParams) -> dict:
+    """:func:`_class_llr`'s per-feature options for :func:`_feature_stack`'s features (intensity, roughness,
+    colour): ``caps``, only smoothness's sky evidence capped; ``monotone``, intensity and colour when
+    ``P.monotone_classes``, never the roughness (one-sided, its sky class at the floor: made monotone it
+    moved the line of dark lunar skies by 0.003 deg and nothing else)."""
+    return {"caps": [None, P.smooth_evidence_cap, None][:n_features],
+            "monotone": [P.monotone_classes, False, P.monotone_classes][:n_features]}
 
 
 def _sky_probability(llr: np.ndarray) -> np.ndarray:
@@ -684,8 +685,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     guide_c = (coarse.raw_row + 0.5) * sy - 0.5
     guide = np.interp(cols, centres, guide_c, period=W) if wrap else np.interp(cols, centres, guide_c)
     col_c = np.minimum(((cols + 0.5) / sx).astype(np.int64), Wc - 1)
-    wide_only = not P.coarse_contrast_cap and coarse.context_confidence is not None
-    conf_c = (coarse.context_confidence if wide_only else coarse.confidence)[col_c]
+    conf_c = (coarse.confidence if P.coarse_contrast_cap else coarse.context_confidence)[col_c]
     clipped_c = coarse.clipped_rows[col_c] * sy if coarse.clipped_rows is not None else np.zeros(W)
     n_seen_col = np.full(W, H) if seen is None else seen.sum(axis=0)
     del coarse
@@ -714,8 +714,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         return _empty(W, diag | {"reason": "one class only"})
     edges = _sector_edges(W, P.n_sectors)
     p, stats = _class_llr(feats, sky_cls, ground_cls, floors, edges, P.min_sector_pixels, wrap,
-                          caps=[None, P.smooth_evidence_cap, None][:len(feats)], broaden=P.ground_broadening,
-                          monotone=_monotone(len(feats), P))
+                          broaden=P.ground_broadening, **_feature_likelihoods(len(feats), P))
     del sky_cls, ground_cls
     _sky_probability(p)
     mu_s, sd_s, mu_g, sd_g, glob_s, glob_g = stats[0]

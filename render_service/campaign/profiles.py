@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
+from blender_addon.core.cameras import PRESETS as CAMERAS
 from blender_addon.core.cameras import get_preset
 from board.errors import InvalidInputError
 
@@ -140,7 +141,6 @@ def get_profile(name: str, **overrides) -> Profile:
         raise InvalidInputError(f"profile {p.name}: n_poses >= 1, area_m > 0 and step_m > 0 are needed")
     if p.site_margin_m < 0:
         raise InvalidInputError(f"site_margin_m = {p.site_margin_m:g}: use 0 (automatic) or a margin in metres")
-    from blender_addon.core.cameras import PRESETS as CAMERAS  # noqa: PLC0415
     from blender_addon.core.degrade import PRESETS as LOOKS  # noqa: PLC0415
 
     for what in ("t4_presets", "t5_presets", "window_presets", "heading_presets"):
