@@ -7,7 +7,11 @@ same pictures, without rendering them again (minutes instead of a campaign's hal
 per-azimuth errors it saves show *where* the chain errs (bias, smooth error, outliers).
 
     python -m benchmarks.campaign_reextract RUN [RUN ...] [--looks clean,realistic] [--out rows.json]
-        [--compare old_rows.json] [--errors errors.npz] [--jobs 2]
+        [--compare old_rows.json] [--errors errors.npz] [--jobs 2] [--grey]
+
+``--grey`` turns each colour panorama into what a monochrome camera of the same spectral response would
+have stored (the linear luminance, Rec. 709 weights, encoded again with the picture's transfer), to
+measure the detector without its colour feature.
 
 Scoring is the campaign's own (:mod:`render_service.campaign.scoring`: the true skyline in the mast
 frame, the seen azimuths of the picture, wrong beyond 25 m or 2 degrees).  The printed table has one
@@ -40,13 +44,30 @@ def _cases(run: Path, looks: set[str] | None) -> list[tuple[Path, dict]]:
     return out
 
 
+def monochrome(image: np.ndarray, transfer: str) -> np.ndarray:
+    """The grey picture a monochrome camera would store for a BGR ``image`` (same dtype): linear luminance
+    (Rec. 709 weights on the decoded channels), encoded with ``transfer`` ("srgb" or "linear") again."""
+    from board.transfer import srgb_encode, to_linear
+
+    img = np.asarray(image)
+    if img.ndim == 2:
+        return img
+    lin = to_linear(img, transfer).astype(np.float64)
+    y = lin[..., 2] * 0.2126 + lin[..., 1] * 0.7152 + lin[..., 0] * 0.0722
+    enc = srgb_encode(y) if transfer == "srgb" else y
+    full = np.iinfo(img.dtype).max if np.issubdtype(img.dtype, np.integer) else 1.0
+    out = np.clip(enc, 0.0, 1.0) * full
+    return (np.round(out) if np.issubdtype(img.dtype, np.integer) else out).astype(img.dtype)
+
+
 def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None, transfer: str | None = None,
-                  options: dict | None = None) -> dict:
+                  options: dict | None = None, grey: bool = False) -> dict:
     """Extract, locate (lost in space against the run's database) and score one panorama case.
 
     detector : :class:`board.detect.DetectorParams` fields to change (a variant of the detector);
     options : :class:`board.extraction.ExtractionOptions` fields to change (such as ``clipped_sky_gain``);
-    transfer : the image transfer to assume instead of the manifest's (``"linear"``: the stored values).
+    transfer : the image transfer to assume instead of the manifest's (``"linear"``: the stored values);
+    grey : extract from the picture a monochrome camera would have taken (:func:`monochrome`).
     """
     from dataclasses import replace
 
@@ -70,6 +91,8 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     pano = load_panorama(fold / "panorama")
     if transfer:
         pano.transfer = transfer
+    if grey:
+        pano.image = monochrome(pano.image, pano.transfer)
     opts = replace(ExtractionOptions(), **(options or {}))
     if detector:
         opts = replace(opts, detector=replace(opts.detector, **detector))
@@ -155,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--transfer", choices=("srgb", "linear"), default=None,
                     help="assume this image transfer instead of the manifests' ('linear': place the line on the "
                          "stored values, as before session 9)")
+    ap.add_argument("--grey", action="store_true",
+                    help="extract from monochrome versions of the panoramas (linear luminance, re-encoded)")
     a = ap.parse_args(argv)
     looks = {s for s in a.looks.split(",") if s} or None
     import ast
@@ -180,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rows: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(a.jobs, 1)) as pool:
-        futs = [pool.submit(evaluate_case, *t, detector or None, a.transfer, options or None) for t in todo]
+        futs = [pool.submit(evaluate_case, *t, detector or None, a.transfer, options or None, a.grey) for t in todo]
         for i, f in enumerate(futs, 1):
             rows.append(f.result())
             print(f"\r{i}/{len(futs)} cases", end="", file=sys.stderr, flush=True)

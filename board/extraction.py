@@ -59,6 +59,8 @@ class ExtractionOptions:
     min_ok_fraction: float = 0.9
     clipped_sky_gain: float = CLIPPED_SHIFT_GAIN   # a clipped sky's line is moved up to its edge by this model
                                                    # gain (board.clipped_sky); 0 leaves it where it was found
+    fine_samples: bool = True            # the skyline also carries the line at about the panorama's own step
+                                         # (Skyline.fine_elevation_deg), which the matcher aligns with the database
 
 
 @dataclass
@@ -206,7 +208,13 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
             "panorama_step_deg": geom.azimuth_step_deg, "kept_column_fraction": round(kept, 4)}
     if pano.mast_height_m is not None:
         meta["mast_height_m"] = pano.mast_height_m
-    skyline = Skyline(skyline.elevation_deg, skyline.azimuth_start_deg, skyline.azimuth_step_deg, meta)
+    fine_el, fine_step = None, None
+    if opt.fine_samples and geom.kind != "binary":
+        fine = fine_skyline(line, geom, n_azimuth=opt.n_azimuth, azimuth_start_deg=opt.azimuth_start_deg)
+        if fine is not None:
+            fine_el, fine_step = fine.elevation_deg, fine.azimuth_step_deg
+    skyline = Skyline(skyline.elevation_deg, skyline.azimuth_start_deg, skyline.azimuth_step_deg, meta,
+                      fine_el, fine_step)
     if kept >= opt.min_ok_fraction:
         status, reason = STATUS_OK, f"{100 * kept:.0f}% of the seen columns kept"
     else:
@@ -292,6 +300,25 @@ def panorama_line_to_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_
     if half_cols > 1.0:
         el = _fit_samples(el_col, x, c0, el, half_cols, full_circle=geom.is_full_circle)
     return Skyline(el, float(azimuth_start_deg), 360.0 / n_azimuth, {"azimuth_reference": geom.azimuth_reference})
+
+
+#: most fine samples per skyline step (:func:`fine_skyline`)
+MAX_FINE_PER_STEP = 20
+
+
+def fine_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int, azimuth_start_deg: float = 0.0
+                 ) -> Skyline | None:
+    """The line sampled ``k`` times per skyline step (``k`` = skyline step / panorama step, rounded, 2 to
+    ``MAX_FINE_PER_STEP``), each sample the same estimator as :func:`panorama_line_to_skyline`'s (a line
+    fitted over the same azimuth window), so that every k-th fine sample is a skyline sample.  None when
+    the panorama is not finer than half the skyline's step (nothing to gain)."""
+    step = 360.0 / n_azimuth
+    k = int(round(step / geom.azimuth_step_deg))
+    if k < 2:
+        return None
+    k = min(k, MAX_FINE_PER_STEP)
+    return panorama_line_to_skyline(line_row, geom, n_azimuth=n_azimuth * k, azimuth_start_deg=azimuth_start_deg,
+                                    fit_half_steps=SAMPLE_FIT_HALF_STEPS * k)
 
 
 def _fit_samples(el_col: np.ndarray, x: np.ndarray, c0: np.ndarray, el_interp: np.ndarray, half_cols: float,

@@ -43,6 +43,8 @@ class Fix:
     (``{"from_deg", "to_deg", "n", "excess_deg"}``, azimuths in the query's frame, degrees) where the
     query's boundary stands above the DEM's skyline (a near rock or an object not in the DEM: a real
     boundary, not the DEM's skyline) or lies below it (the detector missed the skyline there).
+    aligned_shift_deg : the shift of the query's azimuths for the second pass on the database's own
+    azimuths (:mod:`board.locate.alignment`; 0 when there was none).
     """
 
     x: float
@@ -74,6 +76,7 @@ class Fix:
     grid_col: float = float("nan")
     at_grid_edge: bool = False
     n_outliers: int = 0
+    aligned_shift_deg: float = 0.0
     above_dem: list = field(default_factory=list)
     below_dem: list = field(default_factory=list)
     pictures: FixPictures | None = field(default=None, repr=False)
@@ -100,5 +103,6 @@ class Fix:
             "coverage_deg": f(self.coverage_deg), "positions_scored": self.n_scored,
             "positions_pruned": self.n_pruned, "grid_row": f(self.grid_row), "grid_col": f(self.grid_col),
             "at_grid_edge": bool(self.at_grid_edge), "outliers_masked": int(self.n_outliers),
+            "query_aligned_shift_deg": f(self.aligned_shift_deg),
             "above_dem_skyline": list(self.above_dem), "below_dem_skyline": list(self.below_dem),
         }

@@ -43,6 +43,8 @@ class LocateOptions:
         distances (ablation switch; True as tuned)
     robust : mask the query columns the first fix cannot explain and locate again without them
         (:mod:`board.locate.robust`; a clean query is unaffected)
+    align : a query with fine samples is located again, sampled on the database's azimuths at the first
+        fix's heading (:mod:`board.locate.alignment`; a query without them is unaffected)
     """
 
     mode: str = "lost"
@@ -59,6 +61,7 @@ class LocateOptions:
     reweight: bool = True
     parallax: bool = True
     robust: bool = True
+    align: bool = True
 
     @classmethod
     def from_keywords(cls, base: LocateOptions | None = None, **kw) -> LocateOptions:

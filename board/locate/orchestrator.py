@@ -16,6 +16,7 @@ import numpy as np
 
 from board.conventions import wrap_deg180
 from board.errors import InvalidInputError
+from board.locate.alignment import aligned_query
 from board.locate.assemble import make_fix
 from board.locate.fix import Fix
 from board.locate.options import DEFAULT_RADIUS_M, LocateOptions
@@ -174,6 +175,9 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
     Returns
     -------
     Fix : metres in the database CRS, degrees; its status says whether to trust it.
+
+    A skyline with fine samples is located twice (``options.align``): the second time sampled on the
+    database's own azimuths at the first fix's heading (:mod:`board.locate.alignment`).
     """
     t0 = time.perf_counter()
     opts = LocateOptions.from_keywords(options, **overrides) if overrides else (options or LocateOptions())
@@ -181,6 +185,18 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
         db = SkyDB.open(db)
     opts.validate()
     validate_query(db, skyline)
+    fix = _locate_once(db, skyline, opts, progress=progress, t0=t0)
+    if opts.align and fix.status != "failed":
+        aligned = aligned_query(db.meta, skyline, fix.heading_deg)
+        if aligned is not None:
+            fix = _locate_once(db, aligned[0], opts, progress=progress, t0=t0)
+            fix.aligned_shift_deg = aligned[1]
+    fix.elapsed_s = time.perf_counter() - t0
+    return fix
+
+
+def _locate_once(db: SkyDB, skyline: Skyline, opts: LocateOptions, *, progress, t0: float) -> Fix:
+    """:func:`locate` for one sampling of the query (validated options and query)."""
     n = db.meta.n_azimuth
     allowed = None
     if opts.heading_prior_deg is not None:
@@ -217,7 +233,7 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
         if cleaned is not None:
             # columns the fix cannot explain (a rock, a wrong edge): locate again without them
             log.info("%d query column(s) inconsistent with the fix: located again without them", cleaned[1])
-            fix = locate(db, cleaned[0], replace(opts, robust=False), progress=progress)
+            fix = _locate_once(db, cleaned[0], replace(opts, robust=False), progress=progress, t0=t0)
             fix.n_outliers = cleaned[1]
             pics = fix.pictures
             if pics is not None and pics.db_skyline_deg is not None:

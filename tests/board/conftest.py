@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
+from board.conventions import BODIES, curvature_drop_m
 from board.match.synthetic import MountainField, mask_arc, observe
 from board.skydb import GridSpec, SkyDB, SkyDBMeta, SkyDBWriter
 from board.skyline import Skyline
@@ -65,6 +66,21 @@ def mountain_world(tmp_path_factory) -> World:
     db = _write_db(tmp_path_factory.mktemp("mw") / "db.zarr", grid, mf.horizon_chunked)
     fine = np.arange(0.0, 360.0, 0.25)
     return World(db, lambda x, y: (fine, mf.horizon(x, y, fine)[0]), "mountains")
+
+
+@pytest.fixture(scope="session")
+def far_ridges_world(tmp_path_factory):
+    """Hills 1.5-20 km away, 0.5-1.4 deg wide: skylines with structure finer than the database's 1-degree
+    step (as a DEM seen across a crater floor), a 100 m database at 5 m."""
+    rng = np.random.default_rng(5)
+    n = 150
+    d = np.exp(rng.uniform(np.log(1500.0), np.log(20000.0), n))
+    a = rng.uniform(0.0, 2.0 * np.pi, n)
+    h = d * np.tan(np.radians(rng.uniform(0.5, 6.0, n))) + curvature_drop_m(d, BODIES["mars"].radius_m)
+    mf = MountainField(d * np.sin(a), d * np.cos(a), h, d * rng.uniform(0.004, 0.012, n))
+    db = _write_db(tmp_path_factory.mktemp("far") / "db.zarr", GridSpec.from_center((0.0, 0.0), 100.0, 5.0),
+                   mf.horizon_chunked)
+    return db, mf
 
 
 def _raymarched(tmp, dem, center, size_m, step_m) -> World:

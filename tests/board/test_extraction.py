@@ -74,6 +74,28 @@ def test_sampling_keywords_as_locate_uses_them(acquisition):
         extract_from_acquisition(d, azimuth_step_deg=0.7)
 
 
+def test_fine_samples_are_the_same_estimator_on_a_finer_grid(acquisition):
+    """The skyline's fine samples (about the panorama's step, an integer fraction of the skyline's) are the
+    coarse samples at every k-th azimuth, and read the true skyline as well between them (the matcher
+    samples the query there, board.locate.alignment)."""
+    d, f = acquisition
+    res = extract_from_acquisition(d)
+    sk = res.skyline
+    assert sk.has_fine
+    k = round(sk.azimuth_step_deg / sk.fine_step_deg)
+    assert k >= 2 and sk.fine_step_deg <= 1.5 * res.panorama.geometry.azimuth_step_deg
+    np.testing.assert_array_equal(sk.fine_elevation_deg[::k], sk.elevation_deg)
+    step = res.panorama.geometry.elevation_step_deg
+    between = np.arange(sk.fine_elevation_deg.size) % k != 0
+    az = sk.azimuth_start_deg + np.arange(sk.fine_elevation_deg.size) * sk.fine_step_deg
+    err_px = (sk.fine_elevation_deg - f(az))[between] / step
+    assert np.nanmean(np.abs(err_px)) <= 1.0
+    shifted = sk.resampled(0.37)
+    assert np.nanmean(np.abs(shifted.elevation_deg - f(0.37 + np.arange(360.0)))) <= step
+    off = extract_from_acquisition(d, options=ExtractionOptions(fine_samples=False)).skyline
+    assert not off.has_fine and np.array_equal(off.elevation_deg, sk.elevation_deg, equal_nan=True)
+
+
 def test_point_sampling_is_exact_for_a_linear_line():
     g = PanoramaGeometry.full_circle(720, 100, elevation_top_deg=10, elevation_bottom_deg=-10)
     # line whose elevation is linear in azimuth between column centres: el = 0.01 * az (mod the seam)
