@@ -209,7 +209,7 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
     if pano.mast_height_m is not None:
         meta["mast_height_m"] = pano.mast_height_m
     fine_el, fine_step = None, None
-    if opt.fine_samples and geom.kind != "binary":
+    if opt.fine_samples:
         fine = fine_skyline(line, geom, n_azimuth=opt.n_azimuth, azimuth_start_deg=opt.azimuth_start_deg)
         if fine is not None:
             fine_el, fine_step = fine.elevation_deg, fine.azimuth_step_deg

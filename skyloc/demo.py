@@ -73,10 +73,11 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     heading, pitch, roll = float(rng.uniform(0, 360)), 4.0, -3.0
     fine = RenderSpec(camera_height_m=height, n_azimuth=3600, body_radius_m=BODIES["mars"].radius_m)
     az, el, _, _, _ = horizon_from_dem(dem, x=true_x, y=true_y, spec=fine, terrain_dir=out / "terrain_query")
-    q = observe(az, el, heading_deg=heading, pitch_deg=pitch, roll_deg=roll)
-    q = q + rng.normal(0.0, 0.05, q.size)
-    q = mask_arc(q, start_deg=-121.0, width_deg=242.0)
-    sky = Skyline(q, meta={"source": "demo: ray-marched at 0.1 deg, tilted, noisy, 242 deg"})
+    # the line every 0.1 deg (an extraction's fine samples), every 10th of them the 1-deg skyline
+    qf = observe(az, el, heading_deg=heading, pitch_deg=pitch, roll_deg=roll, n=3600)
+    qf = mask_arc(qf + rng.normal(0.0, 0.05, qf.size), start_deg=-121.0, width_deg=242.0)
+    sky = Skyline(qf[::10], meta={"source": "demo: ray-marched at 0.1 deg, tilted, noisy, 242 deg"},
+                  fine_elevation_deg=qf, fine_step_deg=0.1)
     sky.save(out / "query_skyline.json")
     _say(f"[3/7] query skyline at x={true_x:.1f} y={true_y:.1f} (off grid), heading {heading:.1f}, "
          f"pitch {pitch}, roll {roll}, 242 deg seen, noise 0.05 deg -> {out / 'query_skyline.json'}")
@@ -87,7 +88,8 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     _say(f"[4/7] lost-in-space fix: x={fix.x:.1f} y={fix.y:.1f} heading {fix.heading_deg:.2f} "
          f"pitch {fix.pitch_deg:.2f} roll {fix.roll_deg:.2f} | status {fix.status} "
          f"sigma {fix.sigma_x_m:.2f}/{fix.sigma_y_m:.2f} m, {fix.sigma_heading_deg:.2f} deg | "
-         f"error {err:.2f} m, heading error {herr:.2f} deg, {fix.elapsed_s:.2f} s")
+         f"error {err:.2f} m, heading error {herr:.2f} deg, {fix.elapsed_s:.2f} s "
+         f"(second pass on the database's azimuths: query shifted {fix.aligned_shift_deg:+.2f} deg)")
     summary["locate"] = {"error_m": err, "heading_error_deg": herr, "status": fix.status, **fix.to_json_dict()}
     # the other two scenarios of the same query: end of a traverse (prior position 15 m off, 30 m window)
     # and along the traverse (position known to 20 m, heading prior 6 degrees off)

@@ -84,3 +84,26 @@ def test_aligned_second_pass_removes_the_azimuth_interpolation_error(far_ridges_
     (e0, r0), (e1, r1) = (np.median(np.array(out[a]), axis=0) for a in (False, True))
     assert r1 <= 0.6 * r0
     assert e1 <= 0.5 * e0
+
+
+@pytest.mark.parametrize("mode", ["window", "heading", "heading_exact"])
+def test_second_pass_in_every_mode(far_ridges_world, mode):
+    """Window and heading modes (also with an exact position) take the second pass too: the shifted query
+    (its start no longer 0) keeps the heading prior's window and the fixed-position fit right."""
+    db, mf = far_ridges_world
+    rng = np.random.default_rng(11)
+    fine_az = np.arange(0.0, 360.0, 0.02)
+    x, y = (float(v) for v in rng.uniform(-20.0, 20.0, 2))
+    heading = 211.37
+    el = mf.horizon(x, y, fine_az)[0]
+    sky = Skyline(observe(fine_az, el, heading_deg=heading, n=360), 0.0, 1.0, {},
+                  observe(fine_az, el, heading_deg=heading, n=3600), 0.1)
+    kw = {"window": dict(mode="window", prior_xy=(x + 8.0, y - 6.0), radius_m=25.0),
+          "heading": dict(mode="heading", prior_xy=(x + 8.0, y - 6.0), heading_prior_deg=heading + 3.0),
+          "heading_exact": dict(mode="heading", prior_xy=(x, y), heading_prior_deg=heading + 3.0,
+                                position_sigma_m=0.0)}[mode]
+    fix = locate(db, sky, **kw)
+    assert fix.aligned_shift_deg != 0.0 and fix.status != "failed"
+    assert abs((fix.heading_deg - heading + 180.0) % 360.0 - 180.0) <= 0.1
+    if mode != "heading_exact":
+        assert np.hypot(fix.x - x, fix.y - y) <= 10.0
