@@ -7,13 +7,15 @@ the database and the matcher alone contribute to the campaign's position errors:
 interpolation between nodes, the terrain levels, the horizon's quantisation.  What the campaign
 loses beyond that floor is the image chain (render, detection, sampling).
 
-    python -m benchmarks.campaign_db_floor RUN [RUN ...] [--north]
+    python -m benchmarks.campaign_db_floor RUN [RUN ...] [--north] [--no-fine]
 
 Prints one row per pose (error in metres, sigmas, status) and a summary per run.  Each true horizon is
-seen at the pose's own heading (the rover's: its samples fall between the database's azimuths, which
-the matcher interpolates linearly, as it does for every real query).  ``--north`` sees it at heading 0
-instead, every sample on a database azimuth: the database's floor without that interpolation (before
-session 16 the only one measured).  On the flat Aristoteles floor (seed 48, horizons 25-37 km away, DEM
+seen at the pose's own heading (the rover's: its samples fall between the database's azimuths) with fine
+samples every tenth of a step, as an extracted skyline carries them, so that the matcher's second pass
+reads it on the database's azimuths (:mod:`board.locate.alignment`).  ``--no-fine`` leaves the fine samples
+out (the database then interpolated between its azimuths, as before session 16); ``--north`` sees the
+horizon at heading 0 instead, every sample on a database azimuth (before session 16 the only floor
+measured).  On the flat Aristoteles floor (seed 48, horizons 25-37 km away, DEM
 features of 0.2-0.4 deg) the two differ: at heading 0 the 4 poses were 0.5-3.0 m off and `ok`; at their
 own headings 1.2-5.2 m and `ambiguous` (0.012 deg RMS of interpolation error at the true position, 0.0034
 deg on the database's azimuths).
@@ -29,38 +31,49 @@ from pathlib import Path
 import numpy as np
 
 
-def truth_queries(run: Path, n_azimuth: int, start_deg: float, *, north: bool = False
-                  ) -> tuple[list[dict], np.ndarray]:
-    """The run's accepted poses and their true horizons (degrees) as a level mast sees them at the pose's
-    heading (``north``: at heading 0), on ``n_azimuth`` relative azimuths from ``start_deg``: the resampling
-    the campaign's scoring applies to the truth (:func:`board.match.synthetic.observe`)."""
+#: fine samples per database step in the floor's queries (an extracted 3600 px panorama's: 0.1 deg)
+FINE_PER_STEP = 10
+
+
+def truth_queries(run: Path, n_azimuth: int, start_deg: float, *, north: bool = False, fine: bool = False
+                  ) -> tuple[list[dict], np.ndarray, np.ndarray | None]:
+    """The run's accepted poses, their true horizons (degrees) as a level mast sees them at the pose's
+    heading (``north``: at heading 0) on ``n_azimuth`` relative azimuths from ``start_deg`` (the resampling
+    the campaign's scoring applies to the truth, :func:`board.match.synthetic.observe`), and with ``fine``
+    the same every ``1 / FINE_PER_STEP`` step (else None)."""
     from board.match.synthetic import observe
 
     poses = json.loads((run / "poses.json").read_text())["accepted"]
     truth = np.load(run / "truth.npz")["elevation_deg"].astype(np.float64)
     az = np.arange(truth.shape[1]) * 360.0 / truth.shape[1]
-    q = np.stack([observe(az, t, heading_deg=0.0 if north else float(p["heading_deg"]), n=n_azimuth,
-                          start_deg=start_deg) for p, t in zip(poses, truth)])
-    return poses, q
+    heads = [0.0 if north else float(p["heading_deg"]) for p in poses]
+    q = np.stack([observe(az, t, heading_deg=h, n=n_azimuth, start_deg=start_deg) for h, t in zip(heads, truth)])
+    qf = (np.stack([observe(az, t, heading_deg=h, n=n_azimuth * FINE_PER_STEP, start_deg=start_deg)
+                    for h, t in zip(heads, truth)]) if fine else None)
+    return poses, q, qf
 
 
-def floor_rows(run: Path, *, north: bool = False) -> list[dict]:
-    """One dict per pose: index, status, error_m, sigma_x_m, sigma_y_m, sigma_heading_deg, heading_error_deg
-    (``north``: the horizons seen at heading 0, see :func:`truth_queries`)."""
+def floor_rows(run: Path, *, north: bool = False, fine: bool = True) -> list[dict]:
+    """One dict per pose: index, status, error_m, sigma_x_m, sigma_y_m, sigma_heading_deg, heading_error_deg,
+    aligned_shift_deg (``north``, ``fine``: see :func:`truth_queries`)."""
     from board.conventions import wrap_deg180
     from board.locate import locate
     from board.skydb import SkyDB
     from board.skyline import Skyline
 
     db = SkyDB.open(run / "db.zarr")
-    poses, queries = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north)
+    poses, queries, fines = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north, fine=fine)
     rows = []
-    for p, el in zip(poses, queries):
-        fix = locate(db, Skyline(el, db.meta.azimuth_start_deg, db.meta.azimuth_step_deg), mode="lost")
+    step = db.meta.azimuth_step_deg
+    for i, (p, el) in enumerate(zip(poses, queries)):
+        fe = None if fines is None else fines[i]
+        sky = Skyline(el, db.meta.azimuth_start_deg, step, {}, fe, None if fe is None else step / FINE_PER_STEP)
+        fix = locate(db, sky, mode="lost")
         rows.append({"index": int(p["index"]), "status": fix.status,
                      "error_m": math.hypot(fix.x - p["x"], fix.y - p["y"]),
                      "sigma_x_m": fix.sigma_x_m, "sigma_y_m": fix.sigma_y_m, "sigma_heading_deg": fix.sigma_heading_deg,
-                     "heading_error_deg": abs(float(wrap_deg180(fix.heading_deg - (0.0 if north else p["heading_deg"]))))})
+                     "heading_error_deg": abs(float(wrap_deg180(fix.heading_deg - (0.0 if north else p["heading_deg"])))),
+                     "aligned_shift_deg": fix.aligned_shift_deg})
     return rows
 
 
@@ -69,15 +82,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("runs", nargs="+", type=Path, help="campaign output folders (with truth.npz, db.zarr)")
     ap.add_argument("--north", action="store_true",
                     help="see each horizon at heading 0 (samples on the database's azimuths) instead of the pose's")
+    ap.add_argument("--no-fine", action="store_true",
+                    help="no fine samples: the matcher reads the database between its azimuths (no second pass)")
     a = ap.parse_args(argv)
     for run in a.runs:
         missing = [f for f in ("poses.json", "truth.npz", "db.zarr") if not (run / f).exists()]
         if missing:
             print(f"{run}: not a finished campaign folder (missing {', '.join(missing)})", file=sys.stderr)
             return 2
-        rows = floor_rows(run, north=a.north)
-        print(f"\n{run}: {len(rows)} true horizons ({'heading 0' if a.north else 'at the poses headings'}) "
-              "located against the campaign's database")
+        rows = floor_rows(run, north=a.north, fine=not a.no_fine)
+        print(f"\n{run}: {len(rows)} true horizons ({'heading 0' if a.north else 'at the poses headings'}, "
+              f"{'no' if a.no_fine else 'with'} fine samples) located against the campaign's database")
         print("| pose | status | error (m) | sigma x / y (m) | heading error (deg) |")
         print("| ---: | --- | ---: | --- | ---: |")
         for r in rows:
