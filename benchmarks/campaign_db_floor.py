@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 #: fine samples per database step in the floor's queries (an extracted 3600 px panorama's: 0.1 deg)
 FINE_PER_STEP = 10
 

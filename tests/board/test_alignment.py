@@ -29,7 +29,8 @@ def test_resampled_reads_the_fine_samples_where_asked():
         assert r.azimuth_start_deg == start and r.azimuth_step_deg == 1.0 and not r.has_fine
         np.testing.assert_allclose(r.elevation_deg, f(start + np.arange(360)), atol=2e-5)
     np.testing.assert_array_equal(sky.resampled(0.0).elevation_deg, sky.elevation_deg)
-    holed = Skyline(sky.elevation_deg, 0.0, 1.0, {}, np.where(np.arange(3600) == 1005, np.nan, sky.fine_elevation_deg), 0.1)
+    hole = np.where(np.arange(3600) == 1005, np.nan, sky.fine_elevation_deg)
+    holed = Skyline(sky.elevation_deg, 0.0, 1.0, {}, hole, 0.1)
     r = holed.resampled(0.45)            # sample 100 at 100.45 deg lies between fine samples 1004 and 1005
     assert np.isnan(r.elevation_deg[100]) and np.isfinite(np.delete(r.elevation_deg, 100)).all()
 
