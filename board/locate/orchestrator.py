@@ -195,8 +195,10 @@ def locate(db: SkyDB | str | os.PathLike, skyline: Skyline, options: LocateOptio
     return fix
 
 
-def _locate_once(db: SkyDB, skyline: Skyline, opts: LocateOptions, *, progress, t0: float) -> Fix:
-    """:func:`locate` for one sampling of the query (validated options and query)."""
+def _locate_once(db: SkyDB, skyline: Skyline, opts: LocateOptions, *,
+                 progress: Callable[[int, int], None] | None, t0: float) -> Fix:
+    """:func:`locate` for one sampling of the query (options and query already validated; ``t0`` is the
+    ``time.perf_counter()`` of the call's start)."""
     n = db.meta.n_azimuth
     allowed = None
     if opts.heading_prior_deg is not None:
