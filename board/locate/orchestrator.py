@@ -243,6 +243,5 @@ def _locate_once(db: SkyDB, skyline: Skyline, opts: LocateOptions, *,
                     skyline, skyline.seen & ~cleaned[0].seen, db_skyline_deg=pics.db_skyline_deg,
                     db_azimuth_start_deg=pics.db_azimuth_start_deg, heading_deg=fix.heading_deg,
                     pitch_deg=fix.pitch_deg, roll_deg=fix.roll_deg, offset_deg=fix.offset_deg)
-            fix.elapsed_s = time.perf_counter() - t0
             return fix
     return make_fix(db, skyline, q, smap, ref, local, opts=opts, t0=t0, region=region)
