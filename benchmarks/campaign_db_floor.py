@@ -100,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         e = np.array([r["error_m"] for r in rows])
         ok = sum(r["status"] == "ok" for r in rows)
         print(f"summary: error median {np.median(e):.2f} m, p90 {np.percentile(e, 90):.2f} m, max {e.max():.2f} m; "
+              f"within 2.5 m {np.mean(e <= 2.5):.0%}, within 5 m {np.mean(e <= 5.0):.0%}; "
               f"{ok} of {len(rows)} ok; heading error max {max(r['heading_error_deg'] for r in rows):.3f} deg")
     return 0
 

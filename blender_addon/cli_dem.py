@@ -14,7 +14,7 @@ from board.errors import InvalidInputError
 log = logging.getLogger(__name__)
 #: = blender_addon.terrain.multires.CELLS_PER_STEP (not imported here: that module loads GDAL at start-up;
 #: tests/blender_addon/test_multires.py checks the two agree).
-CLI_CELLS_PER_STEP = 4
+CLI_CELLS_PER_STEP = 8
 
 
 @click.group("dem")

@@ -4,7 +4,8 @@ Layout (format ``skyloc-skydb``, version 1)::
 
     db.zarr/
       zarr.json                 group; attrs hold the metadata below
-      elevation/                int16 (ny, nx, n_az), 0.01 degree units, chunks (tile, tile, n_az)
+      elevation/                int16 (ny, nx, n_az), units of ``elevation_scale_deg`` (0.005 degree;
+                                0.01 in stores written before it was a choice), chunks (tile, tile, n_az)
       distance/    (optional)   uint16 (ny, nx, n_az), horizon distance in 10 m units
       tile_done/                uint8 (n_tiles_y, n_tiles_x), chunks (1, 1): 1 once a tile is written
 
@@ -37,7 +38,14 @@ log = logging.getLogger(__name__)
 FORMAT_NAME = "skyloc-skydb"
 FORMAT_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
-ELEVATION_SCALE_DEG = 0.01          # one int16 unit, degrees
+#: one int16 unit of a new store's elevations, degrees: a flat lunar floor's horizon, 25-40 km away, moves
+#: 0.2-0.3 millidegree per metre, so a 0.01-degree unit (0.0029 deg RMS of rounding) swamped what
+#: neighbouring 5 m nodes differ by; 0.005 still spans +-163 deg in int16 and keeps the 2 GB flash budget
+ELEVATION_SCALE_DEG = 0.005
+#: the scale of stores written before ``elevation_scale_deg`` was a choice (their attrs say it too)
+LEGACY_ELEVATION_SCALE_DEG = 0.01
+#: the elevation units a reader accepts (int16 must span +-90 deg: 0.00275 deg at the finest)
+SUPPORTED_ELEVATION_SCALES_DEG = (0.01, 0.005)
 MISSING = np.int16(-32768)          # sentinel: not rendered / not seen
 DISTANCE_SCALE_M = 10.0             # one uint16 unit of the distance array, metres
 DISTANCE_MISSING = np.uint16(65535)
@@ -139,6 +147,8 @@ class SkyDBMeta:
     dem_sha256: str = ""
     tile_size: int = DEFAULT_TILE
     has_distance: bool = False
+    #: one int16 unit of the elevations, degrees (one of SUPPORTED_ELEVATION_SCALES_DEG)
+    elevation_scale_deg: float = ELEVATION_SCALE_DEG
     created_utc: str = field(default_factory=lambda: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     extra: dict = field(default_factory=dict)
 
@@ -160,7 +170,6 @@ class SkyDBMeta:
             "nx": g["nx"],
             "ny": g["ny"],
             "azimuth_step_deg": self.azimuth_step_deg,
-            "elevation_scale_deg": ELEVATION_SCALE_DEG,
             "missing": int(MISSING),
             **d,
         }
@@ -180,26 +189,41 @@ class SkyDBMeta:
                             str(attrs.get("crs_wkt", "")))
             names = {f for f in cls.__dataclass_fields__} - {"grid"}
             kw = {k: attrs[k] for k in names if k in attrs}
+            kw.setdefault("elevation_scale_deg", LEGACY_ELEVATION_SCALE_DEG)
             meta = cls(grid=grid, **kw)
+            meta.elevation_scale_deg = float(meta.elevation_scale_deg)
         except (KeyError, TypeError, ValueError) as exc:
             raise FormatError(f"{where} has corrupt metadata ({exc}); re-render the database") from exc
-        if attrs.get("elevation_scale_deg", ELEVATION_SCALE_DEG) != ELEVATION_SCALE_DEG:
-            raise FormatError(f"{where} uses an unknown elevation scale {attrs.get('elevation_scale_deg')}")
+        try:
+            checked_elevation_scale(meta.elevation_scale_deg)
+        except InvalidInputError as exc:
+            raise FormatError(f"{where}: {exc}; this skyloc cannot read it: upgrade skyloc or re-render "
+                              "the database") from exc
         return meta
 
 
-def quantize_elevation(el_deg: np.ndarray) -> np.ndarray:
-    """Degrees (NaN = missing) -> int16 in 0.01 degree units with the MISSING sentinel."""
+def checked_elevation_scale(scale_deg: float) -> float:
+    """``scale_deg`` if it is one of SUPPORTED_ELEVATION_SCALES_DEG, else InvalidInputError naming them."""
+    for s in SUPPORTED_ELEVATION_SCALES_DEG:
+        if math.isclose(float(scale_deg), s, rel_tol=1e-9):
+            return s
+    raise InvalidInputError(f"elevation unit {scale_deg!r} deg is not one of "
+                            f"{', '.join(str(s) for s in SUPPORTED_ELEVATION_SCALES_DEG)} deg")
+
+
+def quantize_elevation(el_deg: np.ndarray, scale_deg: float = ELEVATION_SCALE_DEG) -> np.ndarray:
+    """Degrees (NaN = missing) -> int16 in ``scale_deg`` units (rounded: at most half a unit off) with the
+    MISSING sentinel; values beyond the int16 range saturate."""
     el = np.asarray(el_deg, dtype=np.float64)
-    q = np.round(el / ELEVATION_SCALE_DEG)
+    q = np.round(el / scale_deg)
     q = np.clip(q, -32767, 32767)
     out = np.where(np.isfinite(el), q, MISSING).astype(np.int16)
     return out
 
 
-def dequantize_elevation(q: np.ndarray, dtype=np.float32) -> np.ndarray:
-    """int16 0.01-degree units -> degrees (``dtype``), NaN where MISSING."""
-    out = q.astype(dtype) * dtype(ELEVATION_SCALE_DEG)
+def dequantize_elevation(q: np.ndarray, dtype=np.float32, scale_deg: float = ELEVATION_SCALE_DEG) -> np.ndarray:
+    """int16 ``scale_deg`` units -> degrees (``dtype``), NaN where MISSING."""
+    out = q.astype(dtype) * dtype(scale_deg)
     out[q == MISSING] = np.nan
     return out
 
@@ -239,7 +263,7 @@ class SkyDBWriter:
         mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
         keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
                 "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
-                "has_distance")
+                "has_distance", "elevation_scale_deg")
         diff = [k for k in keys if mine.get(k) != theirs.get(k)]
         if diff:
             raise InvalidInputError(
@@ -269,6 +293,7 @@ class SkyDBWriter:
         path = Path(path)
         if meta.n_azimuth <= 0 or meta.tile_size <= 0:
             raise InvalidInputError("n_azimuth and tile_size must be positive")
+        meta.elevation_scale_deg = checked_elevation_scale(meta.elevation_scale_deg)
         if path.exists() and not overwrite:
             existing = cls.check_resumable(path, meta, warn=True)
             log.info("resuming %s: %d of %d tiles done", path, existing.n_tiles_done(), len(existing.tiles))
@@ -307,7 +332,7 @@ class SkyDBWriter:
         if self._group["tile_done"][tile.ti, tile.tj]:  # this tile's flag only, not the whole mask
             raise InvalidInputError(f"tile {tile.key} of {self.path} is already written; tiles are written once")
         sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
-        self._group["elevation"][sl] = quantize_elevation(elevation_deg)
+        self._group["elevation"][sl] = quantize_elevation(elevation_deg, self.meta.elevation_scale_deg)
         if self.meta.has_distance:
             if distance_m is None:
                 raise InvalidInputError("this database stores horizon distances: pass distance_m")
@@ -503,12 +528,12 @@ class SkyDB:
         return 0.0 if not self._cache else sum(c.nbytes for c in self._cache.values()) / 1e6
 
     def read_tile_raw(self, tile: Tile) -> np.ndarray:
-        """int16 elevations (0.01 degree units, MISSING sentinel) of one tile."""
+        """int16 elevations (``meta.elevation_scale_deg`` units, MISSING sentinel) of one tile."""
         return self._read("elevation", tile)
 
     def read_tile(self, tile: Tile) -> np.ndarray:
         """float32 elevations in degrees (NaN = missing), shape (nrows, ncols, n_az)."""
-        return dequantize_elevation(self.read_tile_raw(tile))
+        return dequantize_elevation(self.read_tile_raw(tile), scale_deg=self.meta.elevation_scale_deg)
 
     def read_distance(self, tile: Tile) -> np.ndarray | None:
         """Horizon distances (metres, float32, NaN = missing) of one tile, or None if not stored."""
@@ -529,12 +554,14 @@ class SkyDB:
         g = self.grid
         if not (0 <= i < g.ny and 0 <= j < g.nx):
             raise InvalidInputError(f"grid index ({i}, {j}) is outside the {g.ny} x {g.nx} grid")
-        return dequantize_elevation(self._read("elevation", Tile(-1, -1, i, j, 1, 1))[0, 0])
+        return dequantize_elevation(self._read("elevation", Tile(-1, -1, i, j, 1, 1))[0, 0],
+                                    scale_deg=self.meta.elevation_scale_deg)
 
     def read_all(self) -> np.ndarray:
         """All elevations (degrees, float32). Only for small databases: use iter_tiles otherwise."""
         g = self.grid
-        return dequantize_elevation(self._read("elevation", Tile(-1, -1, 0, 0, g.ny, g.nx)))
+        return dequantize_elevation(self._read("elevation", Tile(-1, -1, 0, 0, g.ny, g.nx)),
+                                    scale_deg=self.meta.elevation_scale_deg)
 
     def size_bytes(self) -> int:
         """Bytes on disk of the store."""
@@ -562,6 +589,7 @@ class SkyDB:
             "renderer_version": m.renderer_version,
             "dem_sha256": m.dem_sha256,
             "tile_size": m.tile_size,
+            "elevation_scale_deg": m.elevation_scale_deg,
             "tiles_done": self.n_tiles_done(),
             "tiles_total": len(self.tiles),
             "complete": self.complete,

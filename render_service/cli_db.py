@@ -15,6 +15,7 @@ import click
 from blender_addon.cli_options import at_option, dem_options, site
 from blender_addon.terrain.crs import crs_name
 from board.errors import InvalidInputError
+from board.skydb import ELEVATION_SCALE_DEG, SUPPORTED_ELEVATION_SCALES_DEG
 
 log = logging.getLogger(__name__)
 
@@ -67,9 +68,12 @@ def _with(options):
 @click.option("--terrain-dir", type=click.Path(file_okay=False), default=None,
               help="Prepared multi-resolution terrain (skyloc dem prepare); built here when absent.")
 @click.option("--out", required=True, type=click.Path(), help="Output Zarr store (resumed if it exists).")
+@click.option("--elevation-unit", "elevation_unit", type=float, default=ELEVATION_SCALE_DEG, show_default=True,
+              help="The stored elevations' int16 unit (degrees): "
+                   f"{', '.join(str(s) for s in SUPPORTED_ELEVATION_SCALES_DEG)}.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def render_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_distance, center, size_m, step_m,
-               renderer, tile, terrain_dir, out, no_progress) -> None:
+               renderer, tile, terrain_dir, out, elevation_unit, no_progress) -> None:
     """Render (or resume) the skyline database of a square grid of positions."""
     from render_service.dbrender import render_database  # noqa: PLC0415
 
@@ -83,7 +87,7 @@ def render_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_
     c = site(dem, center, "--center", crs=crs, body=body, assume_metric=assume_metric)
     db = render_database(c.dem_path, center_xy=c.xy_m, size_m=size_m, step_m=step_m, spec=spec, out=out,
                          renderer=renderer, tile_size=tile, terrain_dir=terrain_dir, progress=not no_progress,
-                         body=body, assume_metric=assume_metric)
+                         body=body, assume_metric=assume_metric, elevation_unit_deg=elevation_unit)
     s = db.summary()
     click.echo(f"wrote {out}: {s['grid']['nx']} x {s['grid']['ny']} positions x {s['n_azimuth']} azimuths, "
                f"{s['size_bytes'] / 1e6:.1f} MB, renderer {s['renderer']} v{s['renderer_version']}; centre "
@@ -112,6 +116,7 @@ def info_cmd(store: str, as_json: bool) -> None:
     click.echo(f"  azimuths    {s['n_azimuth']} from {s['azimuth_start_deg']:g} deg every "
                f"{s['azimuth_step_deg']:g} deg (clockwise from grid north)")
     click.echo(f"  body        {s['body']} (R = {s['body_radius_m']:.0f} m), refraction k = {s['refraction_k']:g}")
+    click.echo(f"  elevations  int16 in units of {s['elevation_scale_deg']:g} deg")
     click.echo(f"  renderer    {s['renderer']} v{s['renderer_version']}")
     click.echo(f"  tiles       {s['tiles_done']} of {s['tiles_total']} done ({s['tile_size']} x {s['tile_size']})")
     click.echo(f"  DEM sha256  {s['dem_sha256']}")

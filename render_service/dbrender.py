@@ -27,7 +27,7 @@ import numpy as np
 from blender_addon.terrain.model import MultiResTerrain
 from board.conventions import Body, body_from_name
 from board.errors import InvalidInputError
-from board.skydb import GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, Tile
+from board.skydb import ELEVATION_SCALE_DEG, GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, Tile, checked_elevation_scale
 from render_service.renderers.base import RenderSpec, get_renderer
 from render_service.renderers.raymarch import check_positions_inside
 
@@ -86,13 +86,16 @@ def _resolve_renderer(renderer: str):
 
 def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                 spec: RenderSpec, renderer: str = "raymarch", tile_size: int = 64,
-                body: str | float | None = None, what: str = "the grid", assume_metric: bool = False) -> RenderJob:
+                body: str | float | None = None, what: str = "the grid", assume_metric: bool = False,
+                elevation_unit_deg: float | None = None) -> RenderJob:
     """Validate a render request and describe it; nothing is written.
 
     ``center_xy`` is in metres in the DEM's metric working CRS; ``spec.body_radius_m`` is replaced
-    by the DEM's body radius (or ``body``'s) so the curvature matches the terrain.
-    Raises InvalidInputError (bad step, size, tile, renderer), DemReadError, CrsError.
+    by the DEM's body radius (or ``body``'s) so the curvature matches the terrain.  ``elevation_unit_deg``
+    is the database's int16 elevation unit (degrees; None: board.skydb.ELEVATION_SCALE_DEG).
+    Raises InvalidInputError (bad step, size, tile, renderer, elevation unit), DemReadError, CrsError.
     """
+    unit = checked_elevation_scale(ELEVATION_SCALE_DEG if elevation_unit_deg is None else elevation_unit_deg)
     if not (isinstance(tile_size, (int, np.integer)) and tile_size > 0):
         raise InvalidInputError(f"tile size must be a positive number of positions, got {tile_size}")
     grid = GridSpec.from_center(center_xy, size_m, step_m)          # validates step > 0, size >= 0
@@ -113,7 +116,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
         azimuth_start_deg=float(spec.azimuth_start_deg), body=the_body.name,
         body_radius_m=float(the_body.radius_m), refraction_k=float(spec.refraction_k), renderer=renderer,
         renderer_version=str(getattr(sys.modules[render_fn.__module__], "__version__", "0")),
-        dem_sha256=info.sha256, tile_size=int(tile_size), has_distance=True,
+        dem_sha256=info.sha256, tile_size=int(tile_size), has_distance=True, elevation_scale_deg=unit,
         extra={"dem_path": str(Path(dem_path).resolve()), "center_xy_m": [float(center_xy[0]), float(center_xy[1])],
                "size_m": float(size_m), "step_m": float(step_m),
                "max_distance_m": spec.max_distance_m},
@@ -189,7 +192,8 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
 def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,
                     spec: RenderSpec, out, renderer: str = "raymarch", tile_size: int = 64,
                     terrain_dir=None, progress: bool = True, body: str | float | None = None,
-                    on_tile: Callable[[int, int], None] | None = None, assume_metric: bool = False) -> SkyDB:
+                    on_tile: Callable[[int, int], None] | None = None, assume_metric: bool = False,
+                    elevation_unit_deg: float | None = None) -> SkyDB:
     """Render (or resume) the skyline database of a square grid centred on ``center_xy``.
 
     Parameters
@@ -200,6 +204,7 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
     out : the Zarr store; an existing store of the same render is resumed, finished tiles kept
     terrain_dir : where the multi-resolution terrain is (or will be) prepared
     progress : show a tqdm progress bar (positions, with ETA)
+    elevation_unit_deg : the int16 elevation unit, degrees (None: board.skydb.ELEVATION_SCALE_DEG)
     on_tile : called as ``on_tile(tiles_done, tiles_total)`` once the store is open and after every
         tile written (progress reporting; an exception raised there stops the render like Ctrl-C)
 
@@ -208,7 +213,8 @@ def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, 
     """
     out = Path(out)
     job = prepare_job(dem_path, center_xy=center_xy, size_m=size_m, step_m=step_m, spec=spec,
-                      renderer=renderer, tile_size=tile_size, body=body, assume_metric=assume_metric)
+                      renderer=renderer, tile_size=tile_size, body=body, assume_metric=assume_metric,
+                      elevation_unit_deg=elevation_unit_deg)
     if out.exists():
         # refuse a different database (or a non-database) before spending time on the terrain
         if not (out / "zarr.json").is_file():

@@ -12,7 +12,10 @@ where one of its cells subtends at most 1/n of an azimuth step.  With n = 1 (one
 per step, the rule up to session 7) the max-pooled cells lifted far ridges: database
 horizons were 0.013-0.021 deg RMS above the full-resolution ones on the Moon DEM and
 0.08 deg on the Baltoro one, which moved lost-in-space fixes by metres
-(docs/terrain.md, "Why four cells per step").  Levels are aligned on the
+(docs/terrain.md, "Why four cells per step").  With n = 4 (sessions 7-16) a lunar floor's
+horizons 25-40 km away still stood 0.0032 deg RMS (0.0018 deg on average) above the native ones,
+as much as the rest of the database's error; n = 8 (docs/terrain.md, "Why eight cells per step")
+keeps them within 0.0005 deg.  Levels are aligned on the
 native grid (each coarse cell is exactly 2**k x 2**k native cells), nest (each contains
 the finer ones) and stop at the DEM's edge or ``max_radius_m``.  Coarse cells hold the
 MAXIMUM of the native cells they cover (GDAL Warp ``max``), so distant peaks keep their
@@ -48,8 +51,9 @@ TERRAIN_FORMAT = "skyloc-multires"
 TERRAIN_VERSION = 1
 #: Largest fraction of the search grid allowed to stay without data (after filling small holes).
 DEFAULT_MAX_GRID_MISSING = 0.01
-#: Coarse level k is used only where one of its cells subtends at most 1/CELLS_PER_STEP azimuth step.
-CELLS_PER_STEP = 4
+#: Coarse level k is used only where one of its cells subtends at most 1/CELLS_PER_STEP azimuth step
+#: (4 in sessions 7-16; 8 since session 17: docs/terrain.md, "Why eight cells per step").
+CELLS_PER_STEP = 8
 _GTIFF_OPTIONS = ["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "BLOCKXSIZE=256", "BLOCKYSIZE=256"]
 
 

@@ -12,6 +12,7 @@ from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
 from blender_addon.core.cameras import PRESETS as CAMERAS
 from blender_addon.core.cameras import get_preset
 from board.errors import InvalidInputError
+from board.skydb import ELEVATION_SCALE_DEG, checked_elevation_scale
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,8 @@ class Profile:
     large_area_m : also a lost-in-space search over this area side (``full``; 0 = none)
     min_relief_deg : a pose is used only where the true horizon rises this much above its lowest point
     camera_height_m : mast height for panoramas and databases (acquisitions use the camera's)
+    db_elevation_unit_deg : the databases' int16 elevation unit (degrees; board.skydb.ELEVATION_SCALE_DEG,
+        0.005; before session 17 every database stored 0.01)
     site_margin_m : terrain kept between the search area and the DEM's edge (metres); 0 = automatic, the
         larger of 300 m and 15 % of the DEM's smaller side.  Smaller margins let rover-scale DEMs (a few
         hundred metres) be used, with horizons that end at the DEM's edge sooner
@@ -81,6 +84,7 @@ class Profile:
     camera_height_m: float = 2.05
     site_margin_m: float = 0.0
     pano_band_deg: tuple[float, ...] = FULL_SPHERE_DEG
+    db_elevation_unit_deg: float = ELEVATION_SCALE_DEG
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict:
@@ -154,7 +158,11 @@ def get_profile(name: str, **overrides) -> Profile:
     if p.pano_width < 64 or p.pano_width % 2:
         raise InvalidInputError(f"panorama width {p.pano_width} must be an even number of at least 64 pixels")
     band = checked_band(p.pano_band_deg, what="pano_band_deg", example="--set pano_band_deg=-45,45")
-    return replace(p, pano_band_deg=band)
+    try:
+        unit = checked_elevation_scale(p.db_elevation_unit_deg)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"db_elevation_unit_deg: {exc} (e.g. --set db_elevation_unit_deg=0.01)") from exc
+    return replace(p, pano_band_deg=band, db_elevation_unit_deg=unit)
 
 
 def parse_setting(text: str) -> tuple[str, object]:

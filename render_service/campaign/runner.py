@@ -99,9 +99,15 @@ def _json_default(o):
     raise TypeError(type(o).__name__)
 
 
+#: what a campaign started before a profile field existed ran with, where that is not the field's default:
+#: its databases were stored in 0.01-degree units (board.skydb.LEGACY_ELEVATION_SCALE_DEG)
+LEGACY_PROFILE_VALUES = {"db_elevation_unit_deg": 0.01}
+
+
 def _with_profile_defaults(args: dict) -> dict:
-    """``args`` of an earlier campaign.json with the profile fields added since at their defaults
-    (a campaign started before a field existed ran as its default: it resumes)."""
+    """``args`` of an earlier campaign.json with the profile fields added since at what it ran with (the
+    field's default, or LEGACY_PROFILE_VALUES): a campaign started before a field existed resumes when
+    run as it was, and is refused with the field named when the new default would change it."""
     from dataclasses import MISSING, fields  # noqa: PLC0415
 
     from render_service.campaign.profiles import Profile  # noqa: PLC0415
@@ -109,7 +115,8 @@ def _with_profile_defaults(args: dict) -> dict:
     prof = args.get("profile")
     if not isinstance(prof, dict):
         return args
-    defaults = {f.name: f.default for f in fields(Profile) if f.default is not MISSING and f.name not in prof}
+    defaults = {f.name: LEGACY_PROFILE_VALUES.get(f.name, f.default) for f in fields(Profile)
+                if f.default is not MISSING and f.name not in prof}
     return {**args, "profile": {**prof, **json.loads(json.dumps(defaults, default=_json_default))}}
 
 
@@ -279,12 +286,12 @@ def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str
     f_tr = client.submit(terrain_task, str(dem_path), center, profile.area_m, profile.step_m, TRUTH_N_AZIMUTH, h,
                          str(truth_dir), pure=False)
     db_path = _render_db(client, opt, out / "db.zarr", tdir, dem_path, spec, center, profile.area_m, profile.step_m,
-                         h, say)
+                         h, say, profile.db_elevation_unit_deg)
     f_tr.result()
     large = ""
     if profile.large_area_m > 0:
         large = str(_render_db(client, opt, out / "db_large.zarr", out / "terrain" / "db_large", dem_path, spec,
-                               center, profile.large_area_m, profile.step_m, h, say))
+                               center, profile.large_area_m, profile.step_m, h, say, profile.db_elevation_unit_deg))
     body = body_from_name(opt.body) if opt.body else info.body
     ctx = CampaignContext(out_dir=str(out), dem_path=str(dem_path), dem_spec=spec, body=body.name,
                           site_xy=center, sim_half_m=profile.area_m / 2, db_path=str(db_path),
@@ -294,8 +301,9 @@ def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str
 
 
 def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str, center, size_m: float,
-               step_m: float, h: float, say) -> Path:
-    """A lost-in-space database of ``size_m`` (terrain and tiles on Dask, resumed tile by tile)."""
+               step_m: float, h: float, say, unit_deg: float | None = None) -> Path:
+    """A lost-in-space database of ``size_m`` (terrain and tiles on Dask, resumed tile by tile), its
+    elevations in int16 units of ``unit_deg`` degrees (None: board.skydb.ELEVATION_SCALE_DEG)."""
     from board.skydb import SkyDBWriter  # noqa: PLC0415
     from render_service.campaign.tasks import db_tile_task, terrain_task  # noqa: PLC0415
     from render_service.dbrender import prepare_job  # noqa: PLC0415
@@ -304,7 +312,8 @@ def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str
     t0 = time.perf_counter()
     client.submit(terrain_task, str(dem_path), center, size_m, step_m, 360, h, str(tdir), pure=False).result()
     job = prepare_job(dem_path, center_xy=center, size_m=size_m, step_m=step_m,
-                      spec=RenderSpec(camera_height_m=h, n_azimuth=360), body=opt.body)
+                      spec=RenderSpec(camera_height_m=h, n_azimuth=360), body=opt.body,
+                      elevation_unit_deg=unit_deg)
     job.meta.extra.pop("dem_path", None)
     job.meta.extra["dem"] = spec
     writer = SkyDBWriter.create(db_path, job.meta)

@@ -459,3 +459,23 @@ def test_a_campaign_started_before_a_profile_field_existed_resumes(tmp_path):
     changed["profile"]["samples"] = 32
     with pytest.raises(InvalidInputError, match=r"profile: samples"):
         _check_arguments(tmp_path, changed)
+
+
+def test_a_campaign_from_before_the_finer_database_unit_resumes_only_in_its_own_unit(tmp_path):
+    """A campaign.json without db_elevation_unit_deg ran with 0.01-degree databases (before session 17): run
+    again with today's default (0.005) it is refused with the field named, and resumes with the old unit."""
+    from render_service.campaign.runner import _check_arguments
+
+    args = json.loads(json.dumps({"dem": "x.tif", "profile": get_profile("report").to_dict(), "seed": 1,
+                                  "body": None}))
+    assert args["profile"]["db_elevation_unit_deg"] == 0.005
+    older = json.loads(json.dumps(args))
+    del older["profile"]["db_elevation_unit_deg"]
+    (tmp_path / "campaign.json").write_text(json.dumps({"format": "skyloc-campaign", "version": 1,
+                                                        "arguments": older}))
+    with pytest.raises(InvalidInputError, match=r"profile: db_elevation_unit_deg"):
+        _check_arguments(tmp_path, args)
+    legacy = json.loads(json.dumps({**args, "profile": get_profile("report", db_elevation_unit_deg=0.01).to_dict()}))
+    _check_arguments(tmp_path, legacy)  # resumes
+    with pytest.raises(InvalidInputError, match="db_elevation_unit_deg.*not one of 0.01, 0.005"):
+        get_profile("report", db_elevation_unit_deg=0.02)

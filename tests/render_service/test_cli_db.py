@@ -62,7 +62,8 @@ def test_render_info_and_horizon(dem_path, tmp_path):
     assert info["tiles_done"] == info["tiles_total"] == 9 and info["crs_name"]
     res = runner.invoke(main, ["db", "info", str(out)])
     assert res.exit_code == 0 and "complete" in res.output and "81" not in res.output.split("grid")[0]
-    # db horizon at the same position: same renderer, so the same skyline to the 0.01 deg quantum
+    assert info["elevation_scale_deg"] == 0.005 and "units of 0.005 deg" in res.output
+    # db horizon at the same position: same renderer, so the same skyline to the 0.005 deg quantum
     res = runner.invoke(main, ["db", "horizon", "--dem", str(dem_path), "--at", f"{float(x)},{float(y)}",
                                "--height", "2.0", "--azimuths", "72", "--json"])
     assert res.exit_code == 0, res.output
@@ -70,6 +71,20 @@ def test_render_info_and_horizon(dem_path, tmp_path):
     assert doc["azimuth_deg"][:3] == [0.0, 5.0, 10.0] and len(doc["elevation_deg"]) == 72
     assert doc["crs"] == dem.crs_wkt and (doc["x"], doc["y"]) == (float(x), float(y))
     np.testing.assert_allclose(doc["elevation_deg"], db.skyline(i, j), atol=0.1)
+
+
+def test_legacy_unit_on_request_stores_the_same_skylines_coarser(dem_path, tmp_path):
+    """--elevation-unit 0.01 (the unit before session 17) stores the same render rounded to 0.01 deg."""
+    runner = CliRunner()
+    fine, coarse = tmp_path / "fine.zarr", tmp_path / "coarse.zarr"
+    assert runner.invoke(main, _render_args(dem_path, fine)).exit_code == 0
+    res = runner.invoke(main, _render_args(dem_path, coarse, "--elevation-unit", "0.01"))
+    assert res.exit_code == 0, res.output
+    a, b = SkyDB.open(fine), SkyDB.open(coarse)
+    assert (a.meta.elevation_scale_deg, b.meta.elevation_scale_deg) == (0.005, 0.01)
+    ea, eb = a.read_all().astype(np.float64), b.read_all().astype(np.float64)
+    assert np.nanmax(np.abs(ea - eb)) <= 0.0075 + 1e-6       # both within half their unit of one render
+    assert np.nanmean(np.abs(ea - eb) > 0.0026) > 0.05        # and they do differ: 0.01 is coarser
 
 
 def test_interrupted_render_resumes_without_rewriting(dem_path, tmp_path):
@@ -122,6 +137,7 @@ def test_new_store_failing_before_its_first_tile_is_removed(dem_path, tmp_path):
     (["--height", "-1"], "--height"),
     (["--tile", "0"], "--tile"),
     (["--center", "abc"], "X,Y"),
+    (["--elevation-unit", "0.003"], "0.003 deg is not one of 0.01, 0.005"),
 ])
 def test_bad_input_exits_1_and_writes_nothing(dem_path, tmp_path, extra, message):
     out = tmp_path / "db.zarr"
