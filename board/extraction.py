@@ -59,6 +59,8 @@ class ExtractionOptions:
     min_ok_fraction: float = 0.9
     clipped_sky_gain: float = CLIPPED_SHIFT_GAIN   # a clipped sky's line is moved up to its edge by this model
                                                    # gain (board.clipped_sky); 0 leaves it where it was found
+    sample_fit_degree: int = 1           # each sample is the intercept of a line (1) or a parabola (2) fitted over
+                                         # its azimuth window (SAMPLE_FIT_HALF_STEPS)
     fine_samples: bool = True            # the skyline also carries the line at about the panorama's own step
                                          # (Skyline.fine_elevation_deg), which the matcher aligns with the database
 
@@ -198,7 +200,7 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
         line = line - clipped_line_offset_px(det.clipped_rows, geom.elevation_step_deg,
                                              det.diagnostics.get("edge_width_px"), gain=opt.clipped_sky_gain)
     skyline = panorama_line_to_skyline(line, geom, n_azimuth=opt.n_azimuth,
-                                       azimuth_start_deg=opt.azimuth_start_deg)
+                                       azimuth_start_deg=opt.azimuth_start_deg, fit_degree=opt.sample_fit_degree)
     kept = float(det.valid[seen_cols].mean()) if seen_cols.any() else 0.0
     if skyline.coverage_deg < opt.min_coverage_deg:
         return _failed(f"too few confident columns: {skyline.coverage_deg:.0f} deg of azimuth kept, "
@@ -210,7 +212,8 @@ def _extract(pano: Panorama, opt: ExtractionOptions) -> ExtractionResult:
         meta["mast_height_m"] = pano.mast_height_m
     fine_el, fine_step = None, None
     if opt.fine_samples:
-        fine = fine_skyline(line, geom, n_azimuth=opt.n_azimuth, azimuth_start_deg=opt.azimuth_start_deg)
+        fine = fine_skyline(line, geom, n_azimuth=opt.n_azimuth, azimuth_start_deg=opt.azimuth_start_deg,
+                            fit_degree=opt.sample_fit_degree)
         if fine is not None:
             fine_el, fine_step = fine.elevation_deg, fine.azimuth_step_deg
     skyline = Skyline(skyline.elevation_deg, skyline.azimuth_start_deg, skyline.azimuth_step_deg, meta,
@@ -267,7 +270,8 @@ SAMPLE_FIT_HALF_STEPS = 0.5
 
 def panorama_line_to_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int = DEFAULT_N_AZIMUTH,
                              azimuth_start_deg: float = 0.0,
-                             fit_half_steps: float = SAMPLE_FIT_HALF_STEPS) -> Skyline:
+                             fit_half_steps: float = SAMPLE_FIT_HALF_STEPS,
+                             fit_degree: int = 1) -> Skyline:
     """Sample a per-column line (continuous rows, NaN = masked) as a Skyline.
 
     Sample ``j`` is the elevation at azimuth ``a_j = azimuth_start_deg + j * 360 / n_azimuth`` exactly:
@@ -298,7 +302,7 @@ def panorama_line_to_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_
     el = np.where(t == 0, e0, (1.0 - t) * e0 + t * e1)
     half_cols = fit_half_steps * (360.0 / n_azimuth) / geom.azimuth_step_deg
     if half_cols > 1.0:
-        el = _fit_samples(el_col, x, c0, el, half_cols, full_circle=geom.is_full_circle)
+        el = _fit_samples(el_col, x, c0, el, half_cols, full_circle=geom.is_full_circle, degree=fit_degree)
     return Skyline(el, float(azimuth_start_deg), 360.0 / n_azimuth, {"azimuth_reference": geom.azimuth_reference})
 
 
@@ -306,8 +310,8 @@ def panorama_line_to_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_
 MAX_FINE_PER_STEP = 20
 
 
-def fine_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int, azimuth_start_deg: float = 0.0
-                 ) -> Skyline | None:
+def fine_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int, azimuth_start_deg: float = 0.0,
+                 fit_degree: int = 1) -> Skyline | None:
     """The line sampled ``k`` times per skyline step (``k`` = skyline step / panorama step, rounded, 2 to
     ``MAX_FINE_PER_STEP``), each sample the same estimator as :func:`panorama_line_to_skyline`'s (a line
     fitted over the same azimuth window), so that every k-th fine sample is a skyline sample.  None when
@@ -318,12 +322,13 @@ def fine_skyline(line_row: np.ndarray, geom: PanoramaGeometry, *, n_azimuth: int
         return None
     k = min(k, MAX_FINE_PER_STEP)
     return panorama_line_to_skyline(line_row, geom, n_azimuth=n_azimuth * k, azimuth_start_deg=azimuth_start_deg,
-                                    fit_half_steps=SAMPLE_FIT_HALF_STEPS * k)
+                                    fit_half_steps=SAMPLE_FIT_HALF_STEPS * k, fit_degree=fit_degree)
 
 
 def _fit_samples(el_col: np.ndarray, x: np.ndarray, c0: np.ndarray, el_interp: np.ndarray, half_cols: float,
-                 *, full_circle: bool) -> np.ndarray:
-    """Intercepts at columns ``x`` of the lines fitted to the finite ``el_col`` within ``half_cols`` columns.
+                 *, full_circle: bool, degree: int = 1) -> np.ndarray:
+    """Intercepts at columns ``x`` of the lines (``degree`` 2: parabolas, where at least 5 columns count;
+    the line elsewhere) fitted to the finite ``el_col`` within ``half_cols`` columns.
 
     Samples where ``el_interp`` is NaN (a neighbouring column masked, outside the view) stay NaN; the two
     columns around ``x`` are in every fit, the others only if finite and inside a partial panorama.
@@ -349,4 +354,24 @@ def _fit_samples(el_col: np.ndarray, x: np.ndarray, c0: np.ndarray, el_interp: n
     with np.errstate(invalid="ignore", divide="ignore"):
         line = (s2 * sy - s1 * sxy) / det
     ok = np.isfinite(el_interp) & (s0 >= 2) & (det > 1e-9 * np.maximum(s0 * s2, 1e-300))
-    return np.where(ok, line, el_interp)
+    line = np.where(ok, line, el_interp)
+    if degree < 2:
+        return line
+    # the parabola's intercept: the line's curvature bias (|el''| w^2 / 6) gone, its noise about 1.5 x
+    A = np.empty((d.shape[0], 3, 3))
+    p = [s0, s1, s2, (dw ** 3).sum(axis=1), (dw ** 4).sum(axis=1)]
+    for i in range(3):
+        for j in range(3):
+            A[:, i, j] = p[i + j]
+    b = np.stack([sy, sxy, (dw * dw * v).sum(axis=1)], axis=1)
+    good = ok & (s0 >= 5)
+    quad = np.full(line.shape, np.nan)
+    if np.any(good):
+        Ag = A[good]
+        cond = np.linalg.cond(Ag)
+        fine = cond < 1e8
+        sol = np.full(Ag.shape[0], np.nan)
+        if np.any(fine):
+            sol[fine] = np.linalg.solve(Ag[fine], b[good][fine][..., None])[:, 0, 0]
+        quad[good] = sol
+    return np.where(np.isfinite(quad), quad, line)

@@ -152,6 +152,42 @@ def test_samples_fit_the_columns_within_half_a_step():
         assert np.max(np.abs(err)) > bound / 10      # the bound is not vacuous: there is a bias
 
 
+def _brute_force_quad(el_col, col_az, a, half_deg, period=360.0):
+    """Reference: np.polyfit of degree 2 of the finite columns within ``half_deg`` of azimuth ``a`` (wrapped)."""
+    d = (col_az - a + period / 2) % period - period / 2
+    m = (np.abs(d) <= half_deg + 1e-9) & np.isfinite(el_col)
+    return np.polyval(np.polyfit(d[m], el_col[m], 2), 0.0)
+
+
+def test_parabola_samples_remove_the_curvature_bias_at_a_price_in_noise():
+    """``fit_degree=2``: each sample the intercept of the least-squares parabola through the same columns
+    (brute force: np.polyfit).  On a curved line the line's bias (up to |el''| w**2 / 6) is gone; on
+    independent column errors the noise grows by about 1.5 (the parabola's intercept over ~11 columns of a
+    3600 px step)."""
+    g = PanoramaGeometry.full_circle(3600, 200, elevation_top_deg=20, elevation_bottom_deg=-20)
+    az = g.azimuths_deg()
+    rng = np.random.default_rng(8)
+    el = rng.normal(0.0, 0.1, g.width)
+    sk = panorama_line_to_skyline(g.row_of_el(el), g, azimuth_start_deg=0.3, fit_degree=2)
+    ref = [_brute_force_quad(el, az, a, 0.5) for a in sk.azimuths_deg()]
+    np.testing.assert_allclose(sk.elevation_deg, ref, atol=1e-9)
+    A, P = 1.0, 6.0
+    curved = A * np.sin(2 * np.pi * az / P)
+    for start in (0.0, 0.37):
+        lin = panorama_line_to_skyline(g.row_of_el(curved), g, azimuth_start_deg=start)
+        par = panorama_line_to_skyline(g.row_of_el(curved), g, azimuth_start_deg=start, fit_degree=2)
+        want = A * np.sin(2 * np.pi * lin.azimuths_deg() / P)
+        e_lin, e_par = np.abs(lin.elevation_deg - want).max(), np.abs(par.elevation_deg - want).max()
+        assert e_lin > 0.01 and e_par < e_lin / 20, (e_lin, e_par)
+    noise = {1: [], 2: []}
+    for _ in range(10):
+        rows = g.row_of_el(rng.normal(0.0, 0.1, g.width))
+        for k in noise:
+            noise[k].append(panorama_line_to_skyline(rows, g, fit_degree=k).elevation_deg)
+    ratio = np.sqrt(np.mean(np.square(noise[2]))) / np.sqrt(np.mean(np.square(noise[1])))
+    assert 1.3 < ratio < 1.7, ratio
+
+
 def test_sample_fit_ignores_masked_columns_and_the_edge_of_a_partial_view():
     g = PanoramaGeometry.full_circle(1440, 200, elevation_top_deg=20, elevation_bottom_deg=-20)
     rng = np.random.default_rng(9)
