@@ -195,7 +195,7 @@ class SkyDBMeta:
         except (KeyError, TypeError, ValueError) as exc:
             raise FormatError(f"{where} has corrupt metadata ({exc}); re-render the database") from exc
         try:
-            checked_elevation_scale(meta.elevation_scale_deg)
+            meta.elevation_scale_deg = checked_elevation_scale(meta.elevation_scale_deg)
         except InvalidInputError as exc:
             raise FormatError(f"{where}: {exc}; this skyloc cannot read it: upgrade skyloc or re-render "
                               "the database") from exc

@@ -31,6 +31,7 @@ import numpy as np
 
 from board.atomic import atomic_path, write_text_atomic
 from board.errors import InvalidInputError, SkylocError
+from board.skydb import LEGACY_ELEVATION_SCALE_DEG
 from render_service.campaign import planning, scoring
 from render_service.campaign import summary as summ
 from render_service.campaign.profiles import Profile, get_profile
@@ -100,8 +101,8 @@ def _json_default(o):
 
 
 #: what a campaign started before a profile field existed ran with, where that is not the field's default:
-#: its databases were stored in 0.01-degree units (board.skydb.LEGACY_ELEVATION_SCALE_DEG)
-LEGACY_PROFILE_VALUES = {"db_elevation_unit_deg": 0.01}
+#: its databases were stored in the legacy 0.01-degree units
+LEGACY_PROFILE_VALUES = {"db_elevation_unit_deg": LEGACY_ELEVATION_SCALE_DEG}
 
 
 def _with_profile_defaults(args: dict) -> dict:
