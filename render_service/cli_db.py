@@ -15,12 +15,12 @@ import click
 from blender_addon.cli_options import at_option, dem_options, site
 from blender_addon.terrain.crs import crs_name
 from board.errors import InvalidInputError
-from board.skydb import ELEVATION_SCALE_DEG, SUPPORTED_ELEVATION_SCALES_DEG
+from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, SUPPORTED_ELEVATION_SCALES_DEG
 
 log = logging.getLogger(__name__)
 
 
-def _spec(height: float, azimuths: int, refraction: float, max_distance: float | None):
+def _spec(height: float, azimuths: int, refraction: float, max_distance: float | None, subsamples: int = 1):
     from render_service.renderers.base import RenderSpec  # noqa: PLC0415
 
     if not (math.isfinite(height) and height >= 0):
@@ -31,8 +31,10 @@ def _spec(height: float, azimuths: int, refraction: float, max_distance: float |
         raise InvalidInputError(f"--refraction must be in [0, 1) (0.13 is typical on Earth), got {refraction}")
     if max_distance is not None and not max_distance > 0:
         raise InvalidInputError(f"--max-distance must be > 0 m, got {max_distance}")
+    if not 1 <= subsamples <= 64:
+        raise InvalidInputError(f"--azimuth-subsamples must be 1 (point samples) to 64 rays per sample, got {subsamples}")
     return RenderSpec(camera_height_m=height, n_azimuth=azimuths, refraction_k=refraction,
-                      max_distance_m=max_distance)
+                      max_distance_m=max_distance, azimuth_subsamples=subsamples)
 
 
 @click.group("db")
@@ -71,9 +73,12 @@ def _with(options):
 @click.option("--elevation-unit", "elevation_unit", type=float, default=ELEVATION_SCALE_DEG, show_default=True,
               help="The stored elevations' int16 unit (degrees): "
                    f"{', '.join(str(s) for s in SUPPORTED_ELEVATION_SCALES_DEG)}.")
+@click.option("--azimuth-subsamples", "subsamples", type=int, default=AZIMUTH_SUBSAMPLES, show_default=True,
+              help="Rays averaged per sample across its azimuth step, as an extracted skyline's samples average "
+                   "the horizon over the step (1: point samples, the only kind before; docs/renderer.md).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def render_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_distance, center, size_m, step_m,
-               renderer, tile, terrain_dir, out, elevation_unit, no_progress) -> None:
+               renderer, tile, terrain_dir, out, elevation_unit, subsamples, no_progress) -> None:
     """Render (or resume) the skyline database of a square grid of positions."""
     from render_service.dbrender import render_database  # noqa: PLC0415
 
@@ -83,7 +88,7 @@ def render_cmd(dem, body, assume_metric, crs, height, azimuths, refraction, max_
         raise InvalidInputError(f"--size must be >= 0 m, got {size_m}")
     if tile <= 0:
         raise InvalidInputError(f"--tile must be a positive number of positions, got {tile}")
-    spec = _spec(height, azimuths, refraction, max_distance)
+    spec = _spec(height, azimuths, refraction, max_distance, subsamples)
     c = site(dem, center, "--center", crs=crs, body=body, assume_metric=assume_metric)
     db = render_database(c.dem_path, center_xy=c.xy_m, size_m=size_m, step_m=step_m, spec=spec, out=out,
                          renderer=renderer, tile_size=tile, terrain_dir=terrain_dir, progress=not no_progress,
@@ -116,7 +121,9 @@ def info_cmd(store: str, as_json: bool) -> None:
     click.echo(f"  azimuths    {s['n_azimuth']} from {s['azimuth_start_deg']:g} deg every "
                f"{s['azimuth_step_deg']:g} deg (clockwise from grid north)")
     click.echo(f"  body        {s['body']} (R = {s['body_radius_m']:.0f} m), refraction k = {s['refraction_k']:g}")
-    click.echo(f"  elevations  int16 in units of {s['elevation_scale_deg']:g} deg")
+    click.echo(f"  elevations  int16 in units of {s['elevation_scale_deg']:g} deg; "
+               + ("point samples" if s["azimuth_subsamples"] == 1 else
+                  f"each the mean of {s['azimuth_subsamples']} rays across its step"))
     click.echo(f"  renderer    {s['renderer']} v{s['renderer_version']}")
     click.echo(f"  tiles       {s['tiles_done']} of {s['tiles_total']} done ({s['tile_size']} x {s['tile_size']})")
     click.echo(f"  DEM sha256  {s['dem_sha256']}")

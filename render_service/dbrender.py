@@ -28,7 +28,7 @@ from blender_addon.terrain.model import MultiResTerrain
 from board.conventions import Body, body_from_name
 from board.errors import InvalidInputError
 from board.skydb import ELEVATION_SCALE_DEG, GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, Tile, checked_elevation_scale
-from render_service.renderers.base import RenderSpec, get_renderer
+from render_service.renderers.base import RenderSpec, get_renderer, render_tile_sampled
 from render_service.renderers.raymarch import check_positions_inside
 
 log = logging.getLogger(__name__)
@@ -117,6 +117,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
         body_radius_m=float(the_body.radius_m), refraction_k=float(spec.refraction_k), renderer=renderer,
         renderer_version=str(getattr(sys.modules[render_fn.__module__], "__version__", "0")),
         dem_sha256=info.sha256, tile_size=int(tile_size), has_distance=True, elevation_scale_deg=unit,
+        azimuth_subsamples=int(spec.azimuth_subsamples),
         extra={"dem_path": str(Path(dem_path).resolve()), "center_xy_m": [float(center_xy[0]), float(center_xy[1])],
                "size_m": float(size_m), "step_m": float(step_m),
                "max_distance_m": spec.max_distance_m},
@@ -184,7 +185,11 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
     if w.done_mask()[tile.ti, tile.tj]:
         log.debug("tile %s already written: skipped", tile.key)
         return False
-    res = _resolve_renderer(renderer)(terrain, w.meta.grid, tile, spec)
+    if spec.azimuth_subsamples != w.meta.azimuth_subsamples:
+        raise InvalidInputError(f"{writer_path} holds samples of {w.meta.azimuth_subsamples} ray(s) each; this render "
+                                f"asks for {spec.azimuth_subsamples}: render it with --azimuth-subsamples "
+                                f"{w.meta.azimuth_subsamples} or into another --out")
+    res = render_tile_sampled(_resolve_renderer(renderer), terrain, w.meta.grid, tile, spec)
     w.write_tile(tile, res.elevation_deg, res.distance_m if w.meta.has_distance else None)
     return True
 

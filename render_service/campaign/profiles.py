@@ -12,7 +12,7 @@ from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
 from blender_addon.core.cameras import PRESETS as CAMERAS
 from blender_addon.core.cameras import get_preset
 from board.errors import InvalidInputError
-from board.skydb import ELEVATION_SCALE_DEG, checked_elevation_scale
+from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, checked_elevation_scale
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,9 @@ class Profile:
     camera_height_m : mast height for panoramas and databases (acquisitions use the camera's)
     db_elevation_unit_deg : the databases' int16 elevation unit (degrees; board.skydb.ELEVATION_SCALE_DEG,
         0.005; before session 17 every database stored 0.01)
+    db_azimuth_subsamples : rays averaged per database sample across its azimuth step (board.skydb.AZIMUTH_SUBSAMPLES,
+        4: the horizon averaged over the step, as an extracted sample measures it; 1: point samples, every
+        database before session 18)
     site_margin_m : terrain kept between the search area and the DEM's edge (metres); 0 = automatic, the
         larger of 300 m and 15 % of the DEM's smaller side.  Smaller margins let rover-scale DEMs (a few
         hundred metres) be used, with horizons that end at the DEM's edge sooner
@@ -85,6 +88,7 @@ class Profile:
     site_margin_m: float = 0.0
     pano_band_deg: tuple[float, ...] = FULL_SPHERE_DEG
     db_elevation_unit_deg: float = ELEVATION_SCALE_DEG
+    db_azimuth_subsamples: int = AZIMUTH_SUBSAMPLES
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict:
@@ -162,6 +166,9 @@ def get_profile(name: str, **overrides) -> Profile:
         unit = checked_elevation_scale(p.db_elevation_unit_deg)
     except InvalidInputError as exc:
         raise InvalidInputError(f"db_elevation_unit_deg: {exc} (e.g. --set db_elevation_unit_deg=0.01)") from exc
+    if not 1 <= p.db_azimuth_subsamples <= 64:
+        raise InvalidInputError(f"db_azimuth_subsamples = {p.db_azimuth_subsamples}: use 1 (point samples) to 64 rays "
+                                "per sample (e.g. --set db_azimuth_subsamples=4)")
     return replace(p, pano_band_deg=band, db_elevation_unit_deg=unit)
 
 

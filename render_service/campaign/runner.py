@@ -101,8 +101,8 @@ def _json_default(o):
 
 
 #: what a campaign started before a profile field existed ran with, where that is not the field's default:
-#: its databases were stored in the legacy 0.01-degree units
-LEGACY_PROFILE_VALUES = {"db_elevation_unit_deg": LEGACY_ELEVATION_SCALE_DEG}
+#: its databases were stored in the legacy 0.01-degree units, with point samples
+LEGACY_PROFILE_VALUES = {"db_elevation_unit_deg": LEGACY_ELEVATION_SCALE_DEG, "db_azimuth_subsamples": 1}
 
 
 def _with_profile_defaults(args: dict) -> dict:
@@ -287,12 +287,13 @@ def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str
     f_tr = client.submit(terrain_task, str(dem_path), center, profile.area_m, profile.step_m, TRUTH_N_AZIMUTH, h,
                          str(truth_dir), pure=False)
     db_path = _render_db(client, opt, out / "db.zarr", tdir, dem_path, spec, center, profile.area_m, profile.step_m,
-                         h, say, profile.db_elevation_unit_deg)
+                         h, say, profile.db_elevation_unit_deg, profile.db_azimuth_subsamples)
     f_tr.result()
     large = ""
     if profile.large_area_m > 0:
         large = str(_render_db(client, opt, out / "db_large.zarr", out / "terrain" / "db_large", dem_path, spec,
-                               center, profile.large_area_m, profile.step_m, h, say, profile.db_elevation_unit_deg))
+                               center, profile.large_area_m, profile.step_m, h, say, profile.db_elevation_unit_deg,
+                               profile.db_azimuth_subsamples))
     body = body_from_name(opt.body) if opt.body else info.body
     ctx = CampaignContext(out_dir=str(out), dem_path=str(dem_path), dem_spec=spec, body=body.name,
                           site_xy=center, sim_half_m=profile.area_m / 2, db_path=str(db_path),
@@ -302,9 +303,10 @@ def _prepare(client, opt, profile: Profile, out: Path, dem_path: Path, spec: str
 
 
 def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str, center, size_m: float,
-               step_m: float, h: float, say, unit_deg: float | None = None) -> Path:
+               step_m: float, h: float, say, unit_deg: float | None = None, subsamples: int = 1) -> Path:
     """A lost-in-space database of ``size_m`` (terrain and tiles on Dask, resumed tile by tile), its
-    elevations in int16 units of ``unit_deg`` degrees (None: board.skydb.ELEVATION_SCALE_DEG)."""
+    elevations in int16 units of ``unit_deg`` degrees (None: board.skydb.ELEVATION_SCALE_DEG), each sample
+    the mean of ``subsamples`` rays across its azimuth step (1: point samples)."""
     from board.skydb import SkyDBWriter  # noqa: PLC0415
     from render_service.campaign.tasks import db_tile_task, terrain_task  # noqa: PLC0415
     from render_service.dbrender import prepare_job  # noqa: PLC0415
@@ -313,7 +315,7 @@ def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str
     t0 = time.perf_counter()
     client.submit(terrain_task, str(dem_path), center, size_m, step_m, 360, h, str(tdir), pure=False).result()
     job = prepare_job(dem_path, center_xy=center, size_m=size_m, step_m=step_m,
-                      spec=RenderSpec(camera_height_m=h, n_azimuth=360), body=opt.body,
+                      spec=RenderSpec(camera_height_m=h, n_azimuth=360, azimuth_subsamples=int(subsamples)), body=opt.body,
                       elevation_unit_deg=unit_deg)
     job.meta.extra.pop("dem_path", None)
     job.meta.extra["dem"] = spec

@@ -309,7 +309,8 @@ def _window_db(ctx: CampaignContext, folder: Path, prior_xy, prof):
         except SkylocError:
             pass
         shutil.rmtree(path, ignore_errors=True)
-    spec = RenderSpec(camera_height_m=ctx.camera_height_m, n_azimuth=ctx.n_azimuth)
+    spec = RenderSpec(camera_height_m=ctx.camera_height_m, n_azimuth=ctx.n_azimuth,
+                      azimuth_subsamples=int(prof.db_azimuth_subsamples))
     job = prepare_job(ctx.dem_path, center_xy=(float(prior_xy[0]), float(prior_xy[1])), size_m=prof.window_m,
                       step_m=prof.window_step_m, spec=spec, tile_size=64, body=ctx.body, what="the window",
                       elevation_unit_deg=prof.db_elevation_unit_deg)
