@@ -19,6 +19,10 @@ measured).  On the flat Aristoteles floor (seed 48, horizons 25-37 km away, DEM 
 ``--north`` and ``--no-fine`` differ: at heading 0 the 4 poses were 0.5-3.0 m off and `ok`; at their own
 headings without fine samples 1.2-5.2 m and `ambiguous` (0.012 deg RMS of interpolation error at the true
 position, 0.0034 deg on the database's azimuths); with fine samples (the default) 0.7-3.0 m and `ok` again.
+
+A database whose samples are box averages (``azimuth_subsamples`` > 1, every database since session 18) is
+queried with the true horizons averaged the same way (:func:`observe_box`), a point-sampled one with point
+samples: the floor is the database's own, not a sampling mismatch.
 """
 from __future__ import annotations
 
@@ -34,21 +38,41 @@ import numpy as np
 FINE_PER_STEP = 10
 
 
-def truth_queries(run: Path, n_azimuth: int, start_deg: float, *, north: bool = False, fine: bool = True
-                  ) -> tuple[list[dict], np.ndarray, np.ndarray | None]:
+#: sub-samples averaged per query sample when the database's samples are box averages (the truth is every
+#: 0.1 deg: ten sub-samples cover a 1-degree step at its own resolution)
+BOX_SUBSAMPLES = 10
+
+
+def observe_box(az_deg: np.ndarray, el_deg: np.ndarray, *, heading_deg: float, n: int, start_deg: float,
+                window_deg: float, k: int = BOX_SUBSAMPLES) -> np.ndarray:
+    """:func:`board.match.synthetic.observe` averaged over ``window_deg`` centred on each of the ``n`` relative
+    azimuths (``k`` sub-samples evenly across it; ``window_deg`` 0: point samples), as a box-sampled database
+    or an extracted skyline holds the horizon (degrees)."""
+    from board.match.synthetic import observe
+
+    if window_deg <= 0:
+        return observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg)
+    offs = ((np.arange(k) + 0.5) / k - 0.5) * window_deg
+    return np.mean([observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg + o) for o in offs],
+                   axis=0)
+
+
+def truth_queries(run: Path, n_azimuth: int, start_deg: float, *, north: bool = False, fine: bool = True,
+                  window_deg: float = 0.0) -> tuple[list[dict], np.ndarray, np.ndarray | None]:
     """The run's accepted poses, their true horizons (degrees) as a level mast sees them at the pose's
     heading (``north``: at heading 0) on ``n_azimuth`` relative azimuths from ``start_deg`` (the resampling
     the campaign's scoring applies to the truth, :func:`board.match.synthetic.observe`), and with ``fine``
-    the same every ``1 / FINE_PER_STEP`` step (else None)."""
-    from board.match.synthetic import observe
-
+    the same every ``1 / FINE_PER_STEP`` step (else None).  ``window_deg`` > 0: each sample the horizon
+    averaged over that window centred on its azimuth (a box-sampled database's step: what the extraction's
+    samples measure), else point samples."""
     poses = json.loads((run / "poses.json").read_text())["accepted"]
     truth = np.load(run / "truth.npz")["elevation_deg"].astype(np.float64)
     az = np.arange(truth.shape[1]) * 360.0 / truth.shape[1]
     heads = [0.0 if north else float(p["heading_deg"]) for p in poses]
-    q = np.stack([observe(az, t, heading_deg=h, n=n_azimuth, start_deg=start_deg) for h, t in zip(heads, truth)])
-    qf = (np.stack([observe(az, t, heading_deg=h, n=n_azimuth * FINE_PER_STEP, start_deg=start_deg)
-                    for h, t in zip(heads, truth)]) if fine else None)
+    q = np.stack([observe_box(az, t, heading_deg=h, n=n_azimuth, start_deg=start_deg, window_deg=window_deg)
+                  for h, t in zip(heads, truth)])
+    qf = (np.stack([observe_box(az, t, heading_deg=h, n=n_azimuth * FINE_PER_STEP, start_deg=start_deg,
+                                window_deg=window_deg) for h, t in zip(heads, truth)]) if fine else None)
     return poses, q, qf
 
 
@@ -61,7 +85,9 @@ def floor_rows(run: Path, *, north: bool = False, fine: bool = True) -> list[dic
     from board.skyline import Skyline
 
     db = SkyDB.open(run / "db.zarr")
-    poses, queries, fines = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north, fine=fine)
+    window = db.meta.azimuth_step_deg if db.meta.azimuth_subsamples > 1 else 0.0   # query as the database samples
+    poses, queries, fines = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north, fine=fine,
+                                          window_deg=window)
     rows = []
     step = db.meta.azimuth_step_deg
     for i, (p, el) in enumerate(zip(poses, queries)):

@@ -32,7 +32,8 @@ def _spec(height: float, azimuths: int, refraction: float, max_distance: float |
     if max_distance is not None and not max_distance > 0:
         raise InvalidInputError(f"--max-distance must be > 0 m, got {max_distance}")
     if not 1 <= subsamples <= 64:
-        raise InvalidInputError(f"--azimuth-subsamples must be 1 (point samples) to 64 rays per sample, got {subsamples}")
+        raise InvalidInputError(f"--azimuth-subsamples must be 1 (point samples) to 64 rays per sample, "
+                                f"got {subsamples}")
     return RenderSpec(camera_height_m=height, n_azimuth=azimuths, refraction_k=refraction,
                       max_distance_m=max_distance, azimuth_subsamples=subsamples)
 

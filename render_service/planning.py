@@ -91,7 +91,8 @@ def prepare_db_job(job: SkylineDbJobIn, dem: DemRecord):
     from render_service.renderers.base import RenderSpec  # noqa: PLC0415
 
     rspec = RenderSpec(camera_height_m=job.camera_height_m, n_azimuth=job.azimuths,
-                       azimuth_start_deg=job.azimuth_start_deg, refraction_k=job.refraction_k)
+                       azimuth_start_deg=job.azimuth_start_deg, refraction_k=job.refraction_k,
+                       azimuth_subsamples=job.azimuth_subsamples)
     rjob = prepare_job(dem.path, center_xy=tuple(job.center), size_m=job.size_m, step_m=job.step_m, spec=rspec,
                        renderer=job.renderer, tile_size=job.tile_size, body=dem.body)
     rjob.meta.extra.pop("dem_path", None)

@@ -315,7 +315,8 @@ def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str
     t0 = time.perf_counter()
     client.submit(terrain_task, str(dem_path), center, size_m, step_m, 360, h, str(tdir), pure=False).result()
     job = prepare_job(dem_path, center_xy=center, size_m=size_m, step_m=step_m,
-                      spec=RenderSpec(camera_height_m=h, n_azimuth=360, azimuth_subsamples=int(subsamples)), body=opt.body,
+                      spec=RenderSpec(camera_height_m=h, n_azimuth=360, azimuth_subsamples=int(subsamples)),
+                      body=opt.body,
                       elevation_unit_deg=unit_deg)
     job.meta.extra.pop("dem_path", None)
     job.meta.extra["dem"] = spec

@@ -38,7 +38,7 @@ def _chunk_snapshot(store: Path) -> dict[str, tuple[int, bytes]]:
 def test_render_info_and_horizon(dem_path, tmp_path):
     out = tmp_path / "db.zarr"
     runner = CliRunner()
-    res = runner.invoke(main, _render_args(dem_path, out))
+    res = runner.invoke(main, _render_args(dem_path, out, "--azimuth-subsamples", "1"))   # point samples
     assert res.exit_code == 0, res.output
     db = SkyDB.open(out)
     s = db.summary()
@@ -63,6 +63,7 @@ def test_render_info_and_horizon(dem_path, tmp_path):
     res = runner.invoke(main, ["db", "info", str(out)])
     assert res.exit_code == 0 and "complete" in res.output and "81" not in res.output.split("grid")[0]
     assert info["elevation_scale_deg"] == 0.005 and "units of 0.005 deg" in res.output
+    assert info["azimuth_subsamples"] == 1 and "point samples" in res.output
     # db horizon at the same position: same renderer, so the same skyline to the 0.005 deg quantum
     res = runner.invoke(main, ["db", "horizon", "--dem", str(dem_path), "--at", f"{float(x)},{float(y)}",
                                "--height", "2.0", "--azimuths", "72", "--json"])
@@ -71,6 +72,36 @@ def test_render_info_and_horizon(dem_path, tmp_path):
     assert doc["azimuth_deg"][:3] == [0.0, 5.0, 10.0] and len(doc["elevation_deg"]) == 72
     assert doc["crs"] == dem.crs_wkt and (doc["x"], doc["y"]) == (float(x), float(y))
     np.testing.assert_allclose(doc["elevation_deg"], db.skyline(i, j), atol=0.1)
+
+
+def test_default_samples_are_the_horizon_averaged_over_their_step(dem_path, tmp_path):
+    """A new database's sample is the mean of AZIMUTH_SUBSAMPLES rays across its 5-degree step (72 azimuths),
+    against the brute-force reference traced at the same offsets; `db info` says so."""
+    from board.skydb import AZIMUTH_SUBSAMPLES
+
+    out = tmp_path / "box.zarr"
+    runner = CliRunner()
+    res = runner.invoke(main, _render_args(dem_path, out))
+    assert res.exit_code == 0, res.output
+    db = SkyDB.open(out)
+    assert db.meta.azimuth_subsamples == AZIMUTH_SUBSAMPLES == 4
+    dem = read_dem(dem_path)
+    i, j = 4, 3
+    x, y = (float(v) for v in db.grid.xy(i, j))
+    k = AZIMUTH_SUBSAMPLES
+    refs = [brute_force_horizon(dem, x, y, RenderSpec(camera_height_m=2.0, n_azimuth=72,
+                                                      body_radius_m=dem.body.radius_m,
+                                                      azimuth_start_deg=((m + 0.5) / k - 0.5) * 5.0))[1]
+            for m in range(k)]
+    box, point = np.mean(refs, axis=0), brute_force_horizon(dem, x, y, RenderSpec(
+        camera_height_m=2.0, n_azimuth=72, body_radius_m=dem.body.radius_m))[1]
+    diff = np.abs(db.skyline(i, j) - box)
+    assert np.median(diff) <= 0.05 and diff.max() <= 0.5
+    assert np.median(diff) < 0.5 * np.median(np.abs(db.skyline(i, j) - point))   # a box, not the point
+    res = runner.invoke(main, ["db", "info", str(out)])
+    assert res.exit_code == 0 and f"each the mean of {k} rays across its step" in res.output
+    res = runner.invoke(main, _render_args(dem_path, tmp_path / "bad.zarr", "--azimuth-subsamples", "0"))
+    assert res.exit_code == 1 and "--azimuth-subsamples" in res.output and not (tmp_path / "bad.zarr").exists()
 
 
 def test_legacy_unit_on_request_stores_the_same_skylines_coarser(dem_path, tmp_path):
@@ -89,7 +120,9 @@ def test_legacy_unit_on_request_stores_the_same_skylines_coarser(dem_path, tmp_p
 
 def test_interrupted_render_resumes_without_rewriting(dem_path, tmp_path):
     out = tmp_path / "db.zarr"
-    spec = RenderSpec(camera_height_m=2.0, n_azimuth=72)
+    from board.skydb import AZIMUTH_SUBSAMPLES
+
+    spec = RenderSpec(camera_height_m=2.0, n_azimuth=72, azimuth_subsamples=AZIMUTH_SUBSAMPLES)   # the CLI's default
 
     def stop_after_four(done, total):
         if done == 4:
