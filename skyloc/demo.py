@@ -37,6 +37,7 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     from board.conventions import BODIES
     from board.locate import locate
     from board.match.synthetic import mask_arc, observe
+    from board.skydb import AZIMUTH_SUBSAMPLES
     from board.skyline import Skyline
     from render_service.dbrender import horizon_from_dem, render_database
     from render_service.renderers.base import RenderSpec
@@ -55,7 +56,10 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     cy = gt[3] + gt[5] * ds.RasterYSize / 2
     ds = None
     height = 2.0
-    spec = RenderSpec(camera_height_m=height, n_azimuth=360, body_radius_m=BODIES["mars"].radius_m)
+    # each sample the horizon averaged over its 1-degree step, as `skyloc db render` stores it (an extracted
+    # sample measures that average)
+    spec = RenderSpec(camera_height_m=height, n_azimuth=360, body_radius_m=BODIES["mars"].radius_m,
+                      azimuth_subsamples=AZIMUTH_SUBSAMPLES)
     t = time.perf_counter()
     db_path = out / "db.zarr"
     db = render_database(dem, center_xy=(cx, cy), size_m=1000.0, step_m=5.0, spec=spec, out=db_path,
@@ -75,8 +79,11 @@ def run(out: Path, *, seed: int = 7, terrain_km: float = 12.0, blender: bool = T
     az, el, _, _, _ = horizon_from_dem(dem, x=true_x, y=true_y, spec=fine, terrain_dir=out / "terrain_query")
     # the line every 0.1 deg (an extraction's fine samples), every 10th of them the 1-deg skyline
     qf = observe(az, el, heading_deg=heading, pitch_deg=pitch, roll_deg=roll, n=3600)
+    # averaged over 1 degree centred on each sample, as a camera's columns fitted over one step give it
+    box = np.r_[0.5, np.ones(9), 0.5] / 10.0
+    qf = np.convolve(np.r_[qf[-5:], qf, qf[:5]], box, mode="valid")
     qf = mask_arc(qf + rng.normal(0.0, 0.05, qf.size), start_deg=-121.0, width_deg=242.0)
-    sky = Skyline(qf[::10], meta={"source": "demo: ray-marched at 0.1 deg, tilted, noisy, 242 deg"},
+    sky = Skyline(qf[::10], meta={"source": "demo: ray-marched at 0.1 deg, 1-deg averages, tilted, noisy, 242 deg"},
                   fine_elevation_deg=qf, fine_step_deg=0.1)
     sky.save(out / "query_skyline.json")
     _say(f"[3/7] query skyline at x={true_x:.1f} y={true_y:.1f} (off grid), heading {heading:.1f}, "

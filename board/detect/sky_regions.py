@@ -102,6 +102,10 @@ class DetectorParams:
                                         # line then refined at full resolution in a band around it (0: never)
     monotone_classes: bool = True       # intensity or colour beyond a class's centre (away from the other class) counts
                                         # as that class, never as the other: a sun halo brighter than the sky is sky
+    linear_colour_step: bool = True     # colour images: the sub-pixel line on the linear colour projected on each
+                                        # column's local ground - sky colour difference (session 18), not on grey
+    colour_step_min: float = 0.01       # that difference's length (linear fraction of full scale) below which the
+                                        # column keeps the grey / discriminant step
     coarse_contrast_cap: bool = False   # True: the reduced copy's step-contrast check also caps the full-resolution
                                         # confidence (before session 15; now only its wide-window checks do)
 
@@ -414,7 +418,8 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     lin_raw = _linear_grey(image, P)
     clipped = clipped_run_above(grey, b, P.saturation_level)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
-    y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P)
+    y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P,
+                       lin_rgb=_linear_colour(image, P))
     del lin_raw
     conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     no_sky = 0.0
@@ -521,7 +526,8 @@ def _sky_probability(llr: np.ndarray) -> np.ndarray:
 
 
 def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
-                   polarity: np.ndarray, sep_col: np.ndarray, contrast: np.ndarray, P: DetectorParams) -> np.ndarray:
+                   polarity: np.ndarray, sep_col: np.ndarray, contrast: np.ndarray, P: DetectorParams, *,
+                   lin_rgb: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel line per column (rows) from the intensity step where intensity separates the classes and
     the grey level steps at the line by at least ``P.local_grey_step`` of the class ``contrast`` (colour
     edges shift with lens dispersion), from the discriminant's step ``diff`` elsewhere.  The step's sign is
@@ -530,7 +536,14 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     placed (an sRGB-encoded blurred step peaks up to half a pixel towards its dark side).
 
     A sky clipped above the line hides its half of the step and the line stays below the edge; the
-    extraction moves it back (:mod:`board.clipped_sky`, from the clipped band this detector counts)."""
+    extraction moves it back (:mod:`board.clipped_sky`, from the clipped band this detector counts).
+
+    ``lin_rgb`` (colour images, (H, W, 3) linear light blurred like ``lin``): where a column's ground and sky
+    colours just below and above the line differ by ``P.colour_step_min`` at least, the step is placed on
+    the linear colour projected on that difference instead (:func:`_colour_step`): a mixed pixel is linear
+    in its sky share in every channel, so the projection's half-way point is the edge as the grey's is, and
+    it carries the colour contrast where the grey has little (a sunlit crest as bright as the sky), which
+    the log-chroma discriminant has too but not linearly."""
     # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
     # the horizon brighter than the ground while the sky as a whole is darker)
     w = P.contrast_window_px
@@ -544,7 +557,31 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     istep[1:] *= seen_pair
     istep *= polarity[None, :]
     on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
-    return np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
+    y = np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
+    if lin_rgb is None or not P.linear_colour_step:
+        return y
+    cstep, length = _colour_step(lin_rgb, sf, b, w)
+    return np.where(length >= P.colour_step_min, _subpixel(cstep, b), y)
+
+
+def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical step (r-1 -> r, stored at r, ground side positive) of the linear colour projected on each column's
+    unit ground - sky difference (the means of ``w`` rows below and above the line ``b``), and that difference's
+    length (linear fraction of full scale); ``sf`` (H-1, W) weights the seen row pairs."""
+    d = []
+    for c in range(lin_rgb.shape[2]):
+        ch = lin_rgb[..., c]
+        above, _ = _window_mean(ch[:-1], sf, b - 1, -w + 1, 1)
+        below, _ = _window_mean(ch[1:], sf, b - 1, 1, w + 1)
+        d.append(np.nan_to_num(below - above))
+    d = np.stack(d, axis=-1).astype(np.float32)                 # (W, 3)
+    length = np.sqrt((d * d).sum(axis=-1))
+    u = d / np.maximum(length, np.float32(1e-9))[:, None]
+    proj = np.einsum("hwc,wc->hw", lin_rgb, u, dtype=np.float32)
+    step = np.zeros(proj.shape, dtype=np.float32)
+    np.subtract(proj[1:], proj[:-1], out=step[1:])
+    step[1:] *= sf
+    return step, length
 
 
 def _colour_projection(feats: list[np.ndarray], stats: list, chroma: np.ndarray | None,
@@ -639,6 +676,15 @@ def _linear_grey(image: np.ndarray, P: DetectorParams) -> np.ndarray:
     return lin
 
 
+def _linear_colour(image: np.ndarray, P: DetectorParams) -> np.ndarray | None:
+    """A colour image as linear light per channel, blurred vertically like the grey (H, W, 3); None for a grey
+    image or when ``P.linear_colour_step`` is off."""
+    if not P.linear_colour_step or np.asarray(image).ndim != 3 or image.shape[2] != 3:
+        return None
+    lin = to_linear(image, P.transfer)
+    return np.stack([_vertical_blur(np.ascontiguousarray(lin[..., c]), P) for c in range(3)], axis=-1)
+
+
 def texture_floor(full_scale: float, P: DetectorParams) -> float:
     """Roughness (fraction of full scale) below which a texture is quantisation: ``P.quantisation_texture_levels``
     grey levels of an integer image (``full_scale`` 255 or 65535), 0 for a float image (``full_scale`` 1)."""
@@ -705,6 +751,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     lin_raw = _linear_grey(band, P)
     lin = _vertical_blur(lin_raw, P)[M:-M]
     lin_raw = lin_raw[M:-M]
+    lin_rgb = _linear_colour(band, P)
+    lin_rgb = None if lin_rgb is None else lin_rgb[M:-M]
     del band
     feats, floors, step_features = _feature_stack(blur, tex, chroma)
     sky_cls, ground_cls = _bands_from_line(guide - off, Hb, P.refit_margin_px + f, P.sky_band_px)
@@ -734,8 +782,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     clipped = np.where(b - clipped <= 0, np.maximum(clipped, clipped_c), clipped)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     del lin_raw
-    y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P)
-    del diff, lin
+    y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
+    del diff, lin, lin_rgb
     conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     np.minimum(conf, conf_c, out=conf)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
