@@ -568,13 +568,20 @@ def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int) -> 
     """Vertical step (r-1 -> r, stored at r, ground side positive) of the linear colour projected on each column's
     unit ground - sky difference (the means of ``w`` rows below and above the line ``b``), and that difference's
     length (linear fraction of full scale); ``sf`` (H-1, W) weights the seen row pairs."""
-    d = []
+    d, g = [], []
     for c in range(lin_rgb.shape[2]):
         ch = lin_rgb[..., c]
         above, _ = _window_mean(ch[:-1], sf, b - 1, -w + 1, 1)
         below, _ = _window_mean(ch[1:], sf, b - 1, 1, w + 1)
         d.append(np.nan_to_num(below - above))
-    d = np.stack(d, axis=-1).astype(np.float32)                 # (W, 3)
+        g.append(np.nan_to_num(below))
+    d = np.stack(d, axis=-1).astype(np.float32)                 # (W, 3): ground - sky
+    g = np.stack(g, axis=-1).astype(np.float32)                 # (W, 3): the ground's colour
+    # only the part of the difference across the ground's own colour: the ground's shading (texture, a
+    # sunlit crest) scales its colour and moves nothing along that part, where a mixed pixel is linear
+    # in its sky share
+    gn = g / np.maximum(np.sqrt((g * g).sum(axis=-1)), np.float32(1e-9))[:, None]
+    d -= (d * gn).sum(axis=-1)[:, None] * gn
     length = np.sqrt((d * d).sum(axis=-1))
     u = d / np.maximum(length, np.float32(1e-9))[:, None]
     proj = np.einsum("hwc,wc->hw", lin_rgb, u, dtype=np.float32)
