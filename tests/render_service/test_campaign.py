@@ -479,3 +479,23 @@ def test_a_campaign_from_before_the_finer_database_unit_resumes_only_in_its_own_
     _check_arguments(tmp_path, legacy)  # resumes
     with pytest.raises(InvalidInputError, match="db_elevation_unit_deg.*not one of 0.01, 0.005"):
         get_profile("report", db_elevation_unit_deg=0.02)
+
+
+def test_a_campaign_from_before_box_samples_resumes_only_with_point_samples(tmp_path):
+    """A campaign.json without db_azimuth_subsamples rendered point-sampled databases (before session 18): run
+    again with today's default (4 rays a sample) it is refused with the field named, and resumes with 1."""
+    from render_service.campaign.runner import _check_arguments
+
+    args = json.loads(json.dumps({"dem": "x.tif", "profile": get_profile("report").to_dict(), "seed": 1,
+                                  "body": None}))
+    assert args["profile"]["db_azimuth_subsamples"] == 4
+    older = json.loads(json.dumps(args))
+    del older["profile"]["db_azimuth_subsamples"]
+    (tmp_path / "campaign.json").write_text(json.dumps({"format": "skyloc-campaign", "version": 1,
+                                                        "arguments": older}))
+    with pytest.raises(InvalidInputError, match=r"profile: db_azimuth_subsamples"):
+        _check_arguments(tmp_path, args)
+    legacy = json.loads(json.dumps({**args, "profile": get_profile("report", db_azimuth_subsamples=1).to_dict()}))
+    _check_arguments(tmp_path, legacy)  # resumes
+    with pytest.raises(InvalidInputError, match="db_azimuth_subsamples = 0"):
+        get_profile("report", db_azimuth_subsamples=0)
