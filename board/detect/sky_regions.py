@@ -560,21 +560,31 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     y = np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
     if lin_rgb is None or not P.linear_colour_step:
         return y
-    cstep, length = _colour_step(lin_rgb, sf, b, w)
+    cstep, length = _colour_step(lin_rgb, sf, b, w, P.saturation_level)
     return np.where(length >= P.colour_step_min, _subpixel(cstep, b), y)
 
 
-def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, saturation: float = 0.98
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Vertical step (r-1 -> r, stored at r, ground side positive) of the linear colour projected on each column's
-    unit ground - sky difference (the means of ``w`` rows below and above the line ``b``), and that difference's
-    length (linear fraction of full scale); ``sf`` (H-1, W) weights the seen row pairs."""
+    unit ground - sky difference across the ground's colour (the means of ``w`` rows below and above the line
+    ``b``) and that difference's length (linear fraction of full scale); ``sf``
+    (H-1, W) weights the seen row pairs.  A channel clipped (``saturation`` of full scale, stored) in any of the
+    ``w`` rows on either side is left out of that column's difference: clipped, it is not linear in the mix."""
+    from board.transfer import srgb_decode
+
+    clip = np.float32(srgb_decode(np.array(saturation)) - 1e-4)
     d, g = [], []
     for c in range(lin_rgb.shape[2]):
         ch = lin_rgb[..., c]
         above, _ = _window_mean(ch[:-1], sf, b - 1, -w + 1, 1)
         below, _ = _window_mean(ch[1:], sf, b - 1, 1, w + 1)
-        d.append(np.nan_to_num(below - above))
-        g.append(np.nan_to_num(below))
+        sat = ch >= clip
+        sat_a, _ = _window_mean(sat[:-1].astype(np.float32), sf, b - 1, -w + 1, 1)
+        sat_b, _ = _window_mean(sat[1:].astype(np.float32), sf, b - 1, 1, w + 1)
+        keep = ~((np.nan_to_num(sat_a) > 0) | (np.nan_to_num(sat_b) > 0))
+        d.append(np.where(keep, np.nan_to_num(below - above), 0.0))
+        g.append(np.where(keep, np.nan_to_num(below), 0.0))
     d = np.stack(d, axis=-1).astype(np.float32)                 # (W, 3): ground - sky
     g = np.stack(g, axis=-1).astype(np.float32)                 # (W, 3): the ground's colour
     # only the part of the difference across the ground's own colour: the ground's shading (texture, a

@@ -82,3 +82,19 @@ def test_grey_images_and_colourless_skies_keep_the_grey_step():
     lin = (0.05 + 0.30 * cov * (1 + 0.03 * rng.standard_normal((200, 1440))))[..., None] * np.ones(3)
     img = np.rint(srgb_encode(np.clip(lin, 0, 1)) * 255).astype(np.uint8)
     np.testing.assert_allclose(_errors(img, edge), _errors(img, edge, linear_colour_step=False), atol=1e-6)
+
+
+def test_a_channel_clipped_in_the_sky_is_left_out_of_the_colour_step():
+    """A sky whose blue channel is over full scale (a high sun over a dark ground, exposed for the ground): the
+    clipped channel is not linear in the mix; the step is taken on the other two, still on the edge."""
+    global SKY_BGR
+    saved = SKY_BGR
+    try:
+        SKY_BGR = np.array([3.0, 0.55, 0.30])          # blue far over full scale (0.7 px off if it were used)
+        img, edge = colour_edge_image(crest_gain=0.0, texture=0.02)
+    finally:
+        SKY_BGR = saved
+    assert (img[:60, :, 0] == 255).all()
+    e_on = _errors(img, edge)
+    assert np.isfinite(e_on).mean() > 0.95
+    assert abs(np.nanmean(e_on)) < 0.03 and np.sqrt(np.nanmean(e_on ** 2)) < 0.06
