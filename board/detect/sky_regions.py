@@ -106,6 +106,8 @@ class DetectorParams:
                                         # column's local ground - sky colour difference (session 18), not on grey
     colour_step_min: float = 0.01       # that difference's length (linear fraction of full scale) below which the
                                         # column keeps the grey / discriminant step
+    colour_step_min_share: float = 0.25 # ... and its share of the whole ground - sky difference below which it does:
+                                        # a grey scene's colour difference is the channels' noise
     coarse_contrast_cap: bool = False   # True: the reduced copy's step-contrast check also caps the full-resolution
                                         # confidence (before session 15; now only its wide-window checks do)
 
@@ -560,15 +562,16 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     y = np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
     if lin_rgb is None or not P.linear_colour_step:
         return y
-    cstep, length = _colour_step(lin_rgb, sf, b, w, P.saturation_level)
-    return np.where(length >= P.colour_step_min, _subpixel(cstep, b), y)
+    cstep, length, whole = _colour_step(lin_rgb, sf, b, w, P.saturation_level)
+    use = (length >= P.colour_step_min) & (length >= P.colour_step_min_share * whole)
+    return np.where(use, _subpixel(cstep, b), y)
 
 
 def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, saturation: float = 0.98
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertical step (r-1 -> r, stored at r, ground side positive) of the linear colour projected on each column's
     unit ground - sky difference across the ground's colour (the means of ``w`` rows below and above the line
-    ``b``) and that difference's length (linear fraction of full scale); ``sf``
+    ``b``), that difference's length and the whole difference's (linear fractions of full scale); ``sf``
     (H-1, W) weights the seen row pairs.  A channel clipped (``saturation`` of full scale, stored) in any of the
     ``w`` rows on either side is left out of that column's difference: clipped, it is not linear in the mix."""
     from board.transfer import srgb_decode
@@ -590,6 +593,7 @@ def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, sat
     # only the part of the difference across the ground's own colour: the ground's shading (texture, a
     # sunlit crest) scales its colour and moves nothing along that part, where a mixed pixel is linear
     # in its sky share
+    whole = np.sqrt((d * d).sum(axis=-1))
     gn = g / np.maximum(np.sqrt((g * g).sum(axis=-1)), np.float32(1e-9))[:, None]
     d -= (d * gn).sum(axis=-1)[:, None] * gn
     length = np.sqrt((d * d).sum(axis=-1))
@@ -598,7 +602,7 @@ def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, sat
     step = np.zeros(proj.shape, dtype=np.float32)
     np.subtract(proj[1:], proj[:-1], out=step[1:])
     step[1:] *= sf
-    return step, length
+    return step, length, whole
 
 
 def _colour_projection(feats: list[np.ndarray], stats: list, chroma: np.ndarray | None,
