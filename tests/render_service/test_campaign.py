@@ -461,41 +461,26 @@ def test_a_campaign_started_before_a_profile_field_existed_resumes(tmp_path):
         _check_arguments(tmp_path, changed)
 
 
-def test_a_campaign_from_before_the_finer_database_unit_resumes_only_in_its_own_unit(tmp_path):
-    """A campaign.json without db_elevation_unit_deg ran with 0.01-degree databases (before session 17): run
-    again with today's default (0.005) it is refused with the field named, and resumes with the old unit."""
+@pytest.mark.parametrize("field,now,before,bad,refusal", [
+    ("db_elevation_unit_deg", 0.005, 0.01, 0.02, "db_elevation_unit_deg.*not one of 0.01, 0.005"),   # session 17
+    ("db_azimuth_subsamples", 4, 1, 0, "db_azimuth_subsamples = 0"),                              # session 18
+])
+def test_a_campaign_from_before_a_database_change_resumes_only_as_it_ran(tmp_path, field, now, before, bad, refusal):
+    """A campaign.json without ``field`` rendered its databases as ``before`` (0.01-degree units before session 17,
+    point samples before session 18): run again with today's default it is refused with the field named, and
+    resumes with the old value; an impossible value is refused by the profile."""
     from render_service.campaign.runner import _check_arguments
 
     args = json.loads(json.dumps({"dem": "x.tif", "profile": get_profile("report").to_dict(), "seed": 1,
                                   "body": None}))
-    assert args["profile"]["db_elevation_unit_deg"] == 0.005
+    assert args["profile"][field] == now
     older = json.loads(json.dumps(args))
-    del older["profile"]["db_elevation_unit_deg"]
+    del older["profile"][field]
     (tmp_path / "campaign.json").write_text(json.dumps({"format": "skyloc-campaign", "version": 1,
                                                         "arguments": older}))
-    with pytest.raises(InvalidInputError, match=r"profile: db_elevation_unit_deg"):
+    with pytest.raises(InvalidInputError, match=rf"profile: {field}"):
         _check_arguments(tmp_path, args)
-    legacy = json.loads(json.dumps({**args, "profile": get_profile("report", db_elevation_unit_deg=0.01).to_dict()}))
+    legacy = json.loads(json.dumps({**args, "profile": get_profile("report", **{field: before}).to_dict()}))
     _check_arguments(tmp_path, legacy)  # resumes
-    with pytest.raises(InvalidInputError, match="db_elevation_unit_deg.*not one of 0.01, 0.005"):
-        get_profile("report", db_elevation_unit_deg=0.02)
-
-
-def test_a_campaign_from_before_box_samples_resumes_only_with_point_samples(tmp_path):
-    """A campaign.json without db_azimuth_subsamples rendered point-sampled databases (before session 18): run
-    again with today's default (4 rays a sample) it is refused with the field named, and resumes with 1."""
-    from render_service.campaign.runner import _check_arguments
-
-    args = json.loads(json.dumps({"dem": "x.tif", "profile": get_profile("report").to_dict(), "seed": 1,
-                                  "body": None}))
-    assert args["profile"]["db_azimuth_subsamples"] == 4
-    older = json.loads(json.dumps(args))
-    del older["profile"]["db_azimuth_subsamples"]
-    (tmp_path / "campaign.json").write_text(json.dumps({"format": "skyloc-campaign", "version": 1,
-                                                        "arguments": older}))
-    with pytest.raises(InvalidInputError, match=r"profile: db_azimuth_subsamples"):
-        _check_arguments(tmp_path, args)
-    legacy = json.loads(json.dumps({**args, "profile": get_profile("report", db_azimuth_subsamples=1).to_dict()}))
-    _check_arguments(tmp_path, legacy)  # resumes
-    with pytest.raises(InvalidInputError, match="db_azimuth_subsamples = 0"):
-        get_profile("report", db_azimuth_subsamples=0)
+    with pytest.raises(InvalidInputError, match=refusal):
+        get_profile("report", **{field: bad})
