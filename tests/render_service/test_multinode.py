@@ -227,11 +227,13 @@ def test_job_split_across_two_workers_survives_a_killed_worker(deployment, servi
     assert db.complete
 
     # the single-process run of the same grid (the CLI's code path, no Dask, no service)
+    from board.skydb import AZIMUTH_SUBSAMPLES
     from render_service.dbrender import render_database
     from render_service.renderers.base import RenderSpec
 
     ref = render_database(service_dem.path, center_xy=tuple(dem["center"]), size_m=JOB["size_m"],
-                          step_m=JOB["step_m"], spec=RenderSpec(camera_height_m=JOB["camera_height_m"], n_azimuth=JOB["azimuths"]),
+                          step_m=JOB["step_m"], spec=RenderSpec(camera_height_m=JOB["camera_height_m"], n_azimuth=JOB["azimuths"],
+                                          azimuth_subsamples=AZIMUTH_SUBSAMPLES),   # the job's default
                           out=d["work"] / "single.zarr", tile_size=JOB["tile_size"], progress=False)
     assert [t.key for t in ref.tiles] == [t.key for t in db.tiles]
     for t in ref.tiles:

@@ -94,11 +94,13 @@ def test_clean_run_result_opens_and_matches_the_cli_renderer(clean_run, service_
     got = np.concatenate([db.read_tile_raw(t).reshape(-1, 72) for t in db.tiles])
     assert (got != -32768).all()  # every position rendered
     # the same database through the CLI's code path (one process, no Dask, no service)
+    from board.skydb import AZIMUTH_SUBSAMPLES
     from render_service.dbrender import render_database
     from render_service.renderers.base import RenderSpec
 
     ref = render_database(service_dem.path, center_xy=tuple(dem["center"]), size_m=100, step_m=2,
-                          spec=RenderSpec(camera_height_m=1.5, n_azimuth=72), out=work / "cli.zarr",
+                          spec=RenderSpec(camera_height_m=1.5, n_azimuth=72, azimuth_subsamples=AZIMUTH_SUBSAMPLES),
+                          out=work / "cli.zarr",
                           tile_size=6, progress=False)
     want = np.concatenate([ref.read_tile_raw(t).reshape(-1, 72) for t in ref.tiles])
     np.testing.assert_array_equal(got, want)
