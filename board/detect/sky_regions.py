@@ -46,7 +46,7 @@ from board.detect.clipped_edge import clipped_run_above, edge_width_px
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
 from board.errors import InvalidInputError
-from board.transfer import check_transfer, to_linear
+from board.transfer import check_transfer, srgb_decode, to_linear
 
 log = logging.getLogger(__name__)
 
@@ -574,8 +574,6 @@ def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, sat
     ``b``), that difference's length and the whole difference's (linear fractions of full scale); ``sf``
     (H-1, W) weights the seen row pairs.  A channel clipped (``saturation`` of full scale, stored) in any of the
     ``w`` rows on either side is left out of that column's difference: clipped, it is not linear in the mix."""
-    from board.transfer import srgb_decode
-
     clip = np.float32(srgb_decode(np.array(saturation)) - 1e-4)
     d, g = [], []
     for c in range(lin_rgb.shape[2]):
