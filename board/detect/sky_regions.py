@@ -46,7 +46,7 @@ from board.detect.clipped_edge import clipped_run_above, edge_width_px
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
 from board.errors import InvalidInputError
-from board.transfer import check_transfer, srgb_decode, to_linear
+from board.transfer import check_transfer, to_linear
 
 log = logging.getLogger(__name__)
 
@@ -417,12 +417,12 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     b = line.astype(np.int64)
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
-    lin_raw = _linear_grey(image, P)
+    lin_raw, lin_rgb = _linear_light(image, P)
     clipped = clipped_run_above(grey, b, P.saturation_level)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P,
-                       lin_rgb=_linear_colour(image, P))
-    del lin_raw
+                       lin_rgb=lin_rgb)
+    del lin_raw, lin_rgb
     conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
     no_sky = 0.0
     if chroma is not None:
@@ -562,19 +562,21 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     y = np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
     if lin_rgb is None or not P.linear_colour_step:
         return y
-    cstep, length, whole = _colour_step(lin_rgb, sf, b, w, P.saturation_level)
+    clip = float(to_linear(np.array([P.saturation_level], np.float32), P.transfer)[0]) - 1e-4
+    cstep, length, whole = _colour_step(lin_rgb, sf, b, w, clip)
     use = (length >= P.colour_step_min) & (length >= P.colour_step_min_share * whole)
     return np.where(use, _subpixel(cstep, b), y)
 
 
-def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, saturation: float = 0.98
+def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, clip: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertical step (r-1 -> r, stored at r, ground side positive) of the linear colour projected on each column's
     unit ground - sky difference across the ground's colour (the means of ``w`` rows below and above the line
     ``b``), that difference's length and the whole difference's (linear fractions of full scale); ``sf``
-    (H-1, W) weights the seen row pairs.  A channel clipped (``saturation`` of full scale, stored) in any of the
-    ``w`` rows on either side is left out of that column's difference: clipped, it is not linear in the mix."""
-    clip = np.float32(srgb_decode(np.array(saturation)) - 1e-4)
+    (H-1, W) weights the seen row pairs.  A channel clipped (at ``clip`` or above, linear light: the detector's
+    saturation level through the image's transfer) in any of the ``w`` rows on either side is left out of that
+    column's difference: clipped, it is not linear in the mix."""
+    clip = np.float32(clip)
     d, g = [], []
     for c in range(lin_rgb.shape[2]):
         ch = lin_rgb[..., c]
@@ -684,24 +686,17 @@ def _vertical_blur(a: np.ndarray, P: DetectorParams) -> np.ndarray:
     return cv2.sepFilter2D(a, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
 
 
-def _linear_grey(image: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """The image's grey as linear light (``P.transfer`` undone per channel).  Blurred vertically like
-    :func:`_vertical_features`'s grey, it is where the sub-pixel step is placed."""
+def _linear_light(image: np.ndarray, P: DetectorParams) -> tuple[np.ndarray, np.ndarray | None]:
+    """The image as linear light (``P.transfer`` undone per channel, once): its grey, where the sub-pixel step is
+    placed once blurred vertically like :func:`_vertical_features`'s grey, and for a colour image with
+    ``P.linear_colour_step`` its channels already blurred so (H, W, 3), else None."""
     import cv2
 
     lin = to_linear(image, P.transfer)
-    if lin.ndim == 3:
-        lin = cv2.cvtColor(lin, cv2.COLOR_BGR2GRAY)
-    return lin
-
-
-def _linear_colour(image: np.ndarray, P: DetectorParams) -> np.ndarray | None:
-    """A colour image as linear light per channel, blurred vertically like the grey (H, W, 3); None for a grey
-    image or when ``P.linear_colour_step`` is off."""
-    if not P.linear_colour_step or np.asarray(image).ndim != 3 or image.shape[2] != 3:
-        return None
-    lin = to_linear(image, P.transfer)
-    return np.stack([_vertical_blur(np.ascontiguousarray(lin[..., c]), P) for c in range(3)], axis=-1)
+    if lin.ndim != 3:
+        return lin, None
+    grey = cv2.cvtColor(lin, cv2.COLOR_BGR2GRAY)
+    return grey, (_vertical_blur(lin, P) if P.linear_colour_step and lin.shape[2] == 3 else None)
 
 
 def texture_floor(full_scale: float, P: DetectorParams) -> float:
@@ -767,10 +762,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         bseen &= seen[np.clip(rows, 0, H - 1), cols[None, :]]
     del rows
     grey, blur, tex, chroma = (None if a is None else a[M:-M] for a in _vertical_features(band, P))
-    lin_raw = _linear_grey(band, P)
+    lin_raw, lin_rgb = _linear_light(band, P)
     lin = _vertical_blur(lin_raw, P)[M:-M]
     lin_raw = lin_raw[M:-M]
-    lin_rgb = _linear_colour(band, P)
     lin_rgb = None if lin_rgb is None else lin_rgb[M:-M]
     del band
     feats, floors, step_features = _feature_stack(blur, tex, chroma)
