@@ -52,7 +52,9 @@ def observe_box(az_deg: np.ndarray, el_deg: np.ndarray, *, heading_deg: float, n
 
     if window_deg <= 0:
         return observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg)
-    offs = ((np.arange(k) + 0.5) / k - 0.5) * window_deg
+    from board.skydb import box_offsets_deg
+
+    offs = box_offsets_deg(k, window_deg)
     return np.mean([observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg + o) for o in offs],
                    axis=0)
 

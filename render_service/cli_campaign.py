@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 @click.option("--min-relief-deg", default=None, type=click.FloatRange(0.0, 90.0),
               help="Use only poses whose true horizon rises this much (deg) above its lowest part [profile: 1].")
 @click.option("--poses", default=None, type=click.IntRange(1, 10000),
-              help="Override the profile's number of hidden poses (tables 4, 5, 7, 8).")
+              help="Override the profile's number of hidden poses (tables 4, 5, 7, 8); more than a folder holds "
+                   "grows it (its finished cases are kept).")
 @click.option("--acquisitions", default=None, type=click.IntRange(0, 10000),
               help="Override the profile's number of NavCam acquisitions (table 6).")
 @click.option("--pano-width", default=None, type=click.IntRange(64, 16384),

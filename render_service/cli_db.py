@@ -15,7 +15,7 @@ import click
 from blender_addon.cli_options import at_option, dem_options, site
 from blender_addon.terrain.crs import crs_name
 from board.errors import InvalidInputError
-from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, SUPPORTED_ELEVATION_SCALES_DEG
+from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, MAX_AZIMUTH_SUBSAMPLES, SUPPORTED_ELEVATION_SCALES_DEG
 
 log = logging.getLogger(__name__)
 
@@ -31,8 +31,9 @@ def _spec(height: float, azimuths: int, refraction: float, max_distance: float |
         raise InvalidInputError(f"--refraction must be in [0, 1) (0.13 is typical on Earth), got {refraction}")
     if max_distance is not None and not max_distance > 0:
         raise InvalidInputError(f"--max-distance must be > 0 m, got {max_distance}")
-    if not 1 <= subsamples <= 64:
-        raise InvalidInputError(f"--azimuth-subsamples must be 1 (point samples) to 64 rays per sample, "
+    if not 1 <= subsamples <= MAX_AZIMUTH_SUBSAMPLES:
+        raise InvalidInputError(f"--azimuth-subsamples must be 1 (point samples) to {MAX_AZIMUTH_SUBSAMPLES} rays "
+                                f"per sample, "
                                 f"got {subsamples}")
     return RenderSpec(camera_height_m=height, n_azimuth=azimuths, refraction_k=refraction,
                       max_distance_m=max_distance, azimuth_subsamples=subsamples)

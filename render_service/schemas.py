@@ -9,7 +9,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
-from board.skydb import AZIMUTH_SUBSAMPLES
+from board.skydb import AZIMUTH_SUBSAMPLES, MAX_AZIMUTH_SUBSAMPLES
 
 _ID = r"^[0-9a-f]{8,64}$"
 #: JSON numbers only: a string ("100") or a boolean (true) is refused, not converted.
@@ -33,7 +33,7 @@ class SkylineDbJobIn(_In):
     azimuths: Int = Field(360, ge=1, le=36000, description="Azimuth samples per skyline (360: one degree)")
     azimuth_start_deg: Num = Field(0.0, ge=0, lt=360, description="Azimuth of sample 0, degrees from grid north")
     refraction_k: Num = Field(0.0, ge=0, lt=1, description="Refraction coefficient (0 on airless bodies)")
-    azimuth_subsamples: Int = Field(AZIMUTH_SUBSAMPLES, ge=1, le=64,
+    azimuth_subsamples: Int = Field(AZIMUTH_SUBSAMPLES, ge=1, le=MAX_AZIMUTH_SUBSAMPLES,
                                     description="Rays averaged per sample across its azimuth step (1: point samples)")
     renderer: Literal["raymarch", "blender"] = Field("raymarch", description="Renderer of every tile")
     tile_size: Int = Field(64, ge=2, le=512, description="Tile side in positions (the unit of work and resumption)")

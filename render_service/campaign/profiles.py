@@ -12,7 +12,7 @@ from blender_addon.core.band import FULL_SPHERE_DEG, checked_band
 from blender_addon.core.cameras import PRESETS as CAMERAS
 from blender_addon.core.cameras import get_preset
 from board.errors import InvalidInputError
-from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, checked_elevation_scale
+from board.skydb import AZIMUTH_SUBSAMPLES, ELEVATION_SCALE_DEG, MAX_AZIMUTH_SUBSAMPLES, checked_elevation_scale
 
 
 @dataclass(frozen=True)
@@ -166,9 +166,9 @@ def get_profile(name: str, **overrides) -> Profile:
         unit = checked_elevation_scale(p.db_elevation_unit_deg)
     except InvalidInputError as exc:
         raise InvalidInputError(f"db_elevation_unit_deg: {exc} (e.g. --set db_elevation_unit_deg=0.01)") from exc
-    if not 1 <= p.db_azimuth_subsamples <= 64:
-        raise InvalidInputError(f"db_azimuth_subsamples = {p.db_azimuth_subsamples}: use 1 (point samples) to 64 rays "
-                                "per sample (e.g. --set db_azimuth_subsamples=4)")
+    if not 1 <= p.db_azimuth_subsamples <= MAX_AZIMUTH_SUBSAMPLES:
+        raise InvalidInputError(f"db_azimuth_subsamples = {p.db_azimuth_subsamples}: use 1 (point samples) to "
+                                f"{MAX_AZIMUTH_SUBSAMPLES} rays per sample (e.g. --set db_azimuth_subsamples=4)")
     return replace(p, pano_band_deg=band, db_elevation_unit_deg=unit)
 
 

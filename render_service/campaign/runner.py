@@ -11,6 +11,8 @@
 Killed at any point and run again with the same arguments, a campaign recomputes nothing that
 finished: the database resumes, rows on disk are kept, the poses are the same (drawn from the
 seed), and the outputs are rebuilt from the rows.  Only time columns differ from an uninterrupted run.
+Run again with more poses or acquisitions, it grows: the first poses and their finished cases are
+kept and only the new ones run (``GROWABLE_FIELDS``).
 """
 from __future__ import annotations
 
@@ -121,23 +123,69 @@ def _with_profile_defaults(args: dict) -> dict:
     return {**args, "profile": {**prof, **json.loads(json.dumps(defaults, default=_json_default))}}
 
 
-def _check_arguments(out: Path, args: dict) -> None:
-    """Refuse to resume a campaign of other arguments into the same folder."""
+#: profile fields a resumed campaign may raise: its first poses, acquisitions and window / heading poses are
+#: drawn and planned the same whatever the counts, so their finished rows are kept and only the new ones run
+GROWABLE_FIELDS = ("n_poses", "n_acquisitions", "n_window_poses", "n_heading_poses")
+
+
+def _growth(prev: dict, args: dict) -> dict[str, tuple[int, int]] | None:
+    """``{field: (before, now)}`` when ``args`` differ from ``prev`` only by growable counts (any of them may be
+    lower: the caller refuses that), else None."""
+    a, b = prev.get("profile"), args.get("profile")
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return None
+    if {k: v for k, v in prev.items() if k != "profile"} != {k: v for k, v in args.items() if k != "profile"}:
+        return None
+    diff = {k for k in set(a) | set(b) if a.get(k) != b.get(k)}
+    if not diff or not diff <= set(GROWABLE_FIELDS) or not all(isinstance(a.get(k), int) and isinstance(b.get(k), int)
+                                                                 for k in diff):
+        return None
+    return {k: (a[k], b[k]) for k in sorted(diff)}
+
+
+def _check_arguments(out: Path, args: dict) -> dict[str, tuple[int, int]]:
+    """Refuse to resume a campaign of other arguments into the same folder.
+
+    Returns the counts a resume raises (``{field: (before, now)}``, empty when the arguments are the same):
+    a campaign grows by more poses or acquisitions (``--poses 30`` on a folder of 10), and campaign.json
+    takes the new counts once the new poses are drawn (``_record_growth``).  Lower counts are refused."""
     p = out / "campaign.json"
     if p.is_file():
         old = json.loads(p.read_text())
         prev = _with_profile_defaults(old.get("arguments", {}))
         if prev != args:
+            grown = _growth(prev, args)
+            if grown is not None:
+                fewer = {k: v for k, v in grown.items() if v[1] < v[0]}
+                if not fewer:
+                    return grown
+                raise InvalidInputError(
+                    f"{out} holds a campaign of more cases than asked ("
+                    + ", ".join(f"{k} {b} < {a}" for k, (a, b) in fewer.items())
+                    + "): a resume can add poses and acquisitions but not drop them; give at least the counts it "
+                      "ran with, or use another --out")
             diff = sorted(k for k in set(prev) | set(args) if prev.get(k) != args.get(k))
             if "profile" in diff and isinstance(prev.get("profile"), dict) and isinstance(args.get("profile"), dict):
                 a, b = prev["profile"], args["profile"]
                 diff[diff.index("profile")] = "profile: " + ", ".join(sorted(k for k in set(a) | set(b)
                                                                               if a.get(k) != b.get(k)))
             raise InvalidInputError(f"{out} holds a campaign run with other arguments ({', '.join(diff)} differ): "
-                                    "use another --out, or the same arguments to resume it")
+                                    "use another --out, or the same arguments to resume it (more poses or "
+                                    "acquisitions grow it)")
     else:
         out.mkdir(parents=True, exist_ok=True)
         _write_json(p, {"format": "skyloc-campaign", "version": CAMPAIGN_VERSION, "arguments": args})
+    return {}
+
+
+def _record_growth(out: Path, args: dict, grown: dict[str, tuple[int, int]]) -> None:
+    """campaign.json takes the grown counts (the arguments a later resume must give), with its history."""
+    p = out / "campaign.json"
+    doc = json.loads(p.read_text())
+    doc["arguments"] = args
+    doc.setdefault("grown", []).append({"utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                                        **{k: {"before": a, "now": b} for k, (a, b) in grown.items()}})
+    _write_json(p, doc)
 
 
 def _forget_refused(out: Path, out_existed: bool, fresh: bool) -> None:
@@ -174,7 +222,8 @@ def run_campaign(opt: CampaignOptions) -> dict:
     out = Path(opt.out).resolve()
     args = {"dem": str(opt.dem), "profile": profile.to_dict(), "seed": int(opt.seed), "body": opt.body}
     out_existed, fresh = out.exists(), not (out / "campaign.json").exists()
-    _check_arguments(out, json.loads(json.dumps(args, default=_json_default)))
+    args = json.loads(json.dumps(args, default=_json_default))
+    grown = _check_arguments(out, args)
     try:
         from blender_addon.terrain.dem import dem_info, resolve_dem  # noqa: PLC0415
 
@@ -204,6 +253,10 @@ def run_campaign(opt: CampaignOptions) -> dict:
         client.register_plugin(TerrainPlugin(numba_threads=max(1, (os.cpu_count() or 1) // n_w)))
         ctx, db = _prepare(client, opt, profile, out, dem_path, spec, info, site, say)
         poses, truths = _poses(client, opt, profile, out, site, ctx, say)
+        if grown:
+            _record_growth(out, args, grown)
+            say("  grown: " + ", ".join(f"{k} {a} -> {b}" for k, (a, b) in grown.items())
+                + " (the finished cases of the first ones are kept)")
         cases = planning.plan_cases(profile, len(poses))
         harness_errors = _run_cases(client, ctx, cases, poses, truths, opt, say)
         extra_rows: list[dict] = []
@@ -341,14 +394,24 @@ def _poses(client, opt, profile: Profile, out: Path, site, ctx, say):
     from render_service.campaign.tasks import truth_task  # noqa: PLC0415
 
     pfile, tfile = out / "poses.json", out / "truth.npz"
-    if pfile.is_file() and tfile.is_file():
-        doc = json.loads(pfile.read_text())
-        if doc.get("n_poses") == profile.n_poses:
-            with np.load(tfile) as z:
-                return doc["accepted"], z["elevation_deg"]
-    radius = body_from_name(ctx.body).radius_m
     accepted, rejected, truths = [], [], []
     next_i = 0
+    if pfile.is_file() and tfile.is_file():
+        doc = json.loads(pfile.read_text())
+        with np.load(tfile) as z:
+            el_before = z["elevation_deg"]
+        if doc.get("n_poses") == profile.n_poses:
+            return doc["accepted"], el_before
+        if doc.get("truth_n_azimuth") == TRUTH_N_AZIMUTH and (
+                doc.get("n_poses", 0) < profile.n_poses or len(doc["accepted"]) >= profile.n_poses):
+            # grown (or back to the counts it had before a growth was interrupted): candidates are drawn in
+            # index order, each independent of the others, so the first poses are kept and the draw goes on
+            # after the last one kept, exactly as a campaign of these counts from scratch would draw
+            accepted = doc["accepted"][:profile.n_poses]
+            truths = list(el_before[:len(accepted)])
+            next_i = accepted[-1]["index"] + 1 if accepted else 0
+            rejected = [r for r in doc.get("rejected", []) if r["index"] < next_i]
+    radius = body_from_name(ctx.body).radius_m
     limit = MAX_CANDIDATES_PER_POSE * profile.n_poses
     while len(accepted) < profile.n_poses and next_i < limit:
         need = profile.n_poses - len(accepted)

@@ -13,7 +13,7 @@ import numpy as np
 
 from board.conventions import BODIES
 from board.errors import InvalidInputError
-from board.skydb import GridSpec, Tile
+from board.skydb import MAX_AZIMUTH_SUBSAMPLES, GridSpec, Tile, box_offsets_deg
 
 
 @dataclass(frozen=True)
@@ -45,8 +45,10 @@ class RenderSpec:
     def __post_init__(self) -> None:
         if not (self.n_azimuth > 0):
             raise InvalidInputError(f"n_azimuth must be positive, got {self.n_azimuth}")
-        if not (isinstance(self.azimuth_subsamples, (int, np.integer)) and 1 <= self.azimuth_subsamples <= 64):
-            raise InvalidInputError(f"azimuth_subsamples must be a whole number of rays from 1 to 64, got "
+        if not (isinstance(self.azimuth_subsamples, (int, np.integer))
+                and 1 <= self.azimuth_subsamples <= MAX_AZIMUTH_SUBSAMPLES):
+            raise InvalidInputError(f"azimuth_subsamples must be a whole number of rays from 1 to "
+                                    f"{MAX_AZIMUTH_SUBSAMPLES}, got "
                                     f"{self.azimuth_subsamples!r} (1: point samples; 4: the database default)")
         if not (self.body_radius_m > 0):
             raise InvalidInputError(f"body radius must be positive, got {self.body_radius_m}")
@@ -58,13 +60,13 @@ class RenderSpec:
 
     def ray_spec(self) -> "RenderSpec":
         """The point-sampled spec whose rays a renderer traces for this one: ``n_azimuth * azimuth_subsamples``
-        azimuths, ray ``j * K + k`` at ``start + (j + (k + 0.5) / K - 0.5) * step`` (K rays centred on sample j)."""
+        azimuths, ray ``j * K + k`` at sample j's azimuth + ``board.skydb.box_offsets_deg(K, step)[k]``."""
         k = int(self.azimuth_subsamples)
         if k == 1:
             return self
         step = 360.0 / self.n_azimuth
         return replace(self, n_azimuth=self.n_azimuth * k, azimuth_start_deg=self.azimuth_start_deg
-                       + (0.5 / k - 0.5) * step, azimuth_subsamples=1)
+                       + float(box_offsets_deg(k, step)[0]), azimuth_subsamples=1)
 
     def box_mean(self, rays: np.ndarray) -> np.ndarray:
         """``rays`` (..., n_azimuth * K) rendered on :meth:`ray_spec` -> (..., n_azimuth): each sample the mean of

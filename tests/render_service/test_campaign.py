@@ -293,9 +293,10 @@ ARGS = ["--profile", "ci", "--seed", "5", "--poses", "2", "--acquisitions", "1",
         *[a for s in SETTINGS for a in ("--set", s)]]
 
 
-def _cli(out: Path, **kw) -> subprocess.Popen:
+def _cli(out: Path, poses: int = 2, **kw) -> subprocess.Popen:
     env = dict(os.environ)
-    return subprocess.Popen([sys.executable, "-m", "skyloc.cli", "campaign", "--out", str(out), *ARGS], env=env,
+    args = [a if a != "2" or ARGS[i - 1] != "--poses" else str(poses) for i, a in enumerate(ARGS)]
+    return subprocess.Popen([sys.executable, "-m", "skyloc.cli", "campaign", "--out", str(out), *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **kw)
 
 
@@ -412,6 +413,63 @@ def test_killed_campaign_resumes_to_the_same_results_without_recomputing(campaig
     drop = set(scoring.TIME_COLUMNS)
     assert [{k: v for k, v in r.items() if k not in drop} for r in a] == \
            [{k: v for k, v in r.items() if k not in drop} for r in b]
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_a_campaign_grown_by_a_pose_equals_one_run_at_both_and_keeps_its_first_rows(campaign_run, tmp_path):
+    """A campaign of 1 pose resumed with --poses 2 draws the second pose as a 2-pose campaign does (same
+    candidate, same truth), runs only the new cases, and ends with the 2-pose campaign's rows; a resume
+    with fewer poses than it holds is refused and leaves the folder as it was."""
+    ref, _ = campaign_run
+    out = tmp_path / "run"
+    p = _cli(out, poses=1)
+    log1, _ = p.communicate(timeout=900)
+    assert p.returncode == 0, log1
+    first = {f.parent.name: f.stat().st_mtime_ns for f in (out / "cases").glob("*/row.json")}
+    assert first and all(cid.endswith("-p00") or cid.startswith("r-") for cid in first), first  # r-: robustness
+    p = _cli(out, poses=2)
+    log2, _ = p.communicate(timeout=900)
+    assert p.returncode == 0, log2
+    assert "grown: n_heading_poses 1 -> 2, n_poses 1 -> 2, n_window_poses 1 -> 2" in log2
+    assert f"{sum(not cid.startswith('r-') for cid in first)} finished before" in log2  # tables 4-8
+    for cid, mtime in first.items():
+        assert (out / "cases" / cid / "row.json").stat().st_mtime_ns == mtime, cid
+    assert json.loads((out / "poses.json").read_text())["accepted"] == \
+        json.loads((ref / "poses.json").read_text())["accepted"]
+    with np.load(out / "truth.npz") as a, np.load(ref / "truth.npz") as b:
+        np.testing.assert_array_equal(a["elevation_deg"], b["elevation_deg"])
+    drop = set(scoring.TIME_COLUMNS)
+    assert [{k: v for k, v in r.items() if k not in drop} for r in _rows(ref)] == \
+           [{k: v for k, v in r.items() if k not in drop} for r in _rows(out)]
+    doc = json.loads((out / "campaign.json").read_text())
+    assert doc["arguments"]["profile"]["n_poses"] == 2 and doc["grown"][0]["n_poses"] == {"before": 1, "now": 2}
+    before = {f: f.stat().st_mtime_ns for f in out.rglob("*") if f.is_file()}
+    p = _cli(out, poses=1)
+    log3, _ = p.communicate(timeout=300)
+    assert p.returncode != 0 and "n_poses 1 < 2" in log3 and "not drop" in log3, log3
+    assert {f: f.stat().st_mtime_ns for f in out.rglob("*") if f.is_file()} == before
+
+
+def test_growing_a_campaign_is_the_only_change_a_resume_accepts(tmp_path):
+    """More poses / acquisitions resume (returned as the growth), fewer are refused naming the count, and a
+    count changed together with another field is refused as other arguments."""
+    from render_service.campaign.runner import _check_arguments
+
+    prof = get_profile("report", n_poses=10, n_heading_poses=10).to_dict()
+    args = {"seed": 1, "dem": "x", "profile": json.loads(json.dumps(prof))}
+    _check_arguments(tmp_path, args)
+    more = {**args, "profile": {**args["profile"], "n_poses": 30, "n_acquisitions": 40}}
+    assert _check_arguments(tmp_path, more) == {"n_poses": (10, 30), "n_acquisitions": (prof["n_acquisitions"], 40)}
+    assert _check_arguments(tmp_path, args) == {}
+    fewer = {**args, "profile": {**args["profile"], "n_poses": 30, "n_heading_poses": 5}}
+    with pytest.raises(InvalidInputError, match="n_heading_poses 5 < 10.*not drop"):
+        _check_arguments(tmp_path, fewer)
+    other = {**args, "profile": {**args["profile"], "n_poses": 30, "pano_width": 1800}}
+    with pytest.raises(InvalidInputError, match="profile: n_poses, pano_width differ"):
+        _check_arguments(tmp_path, other)
+    with pytest.raises(InvalidInputError, match="seed differ"):
+        _check_arguments(tmp_path, {**more, "seed": 2})
 
 
 def test_resuming_with_other_arguments_is_refused(tmp_path):
