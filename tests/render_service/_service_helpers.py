@@ -1,4 +1,5 @@
-"""Helpers for the render-service tests: a real `skyloc serve` subprocess on 127.0.0.1 and test rasters."""
+"""Helpers for the render-service tests: a real `skyloc serve` subprocess on 127.0.0.1, test rasters and analytic
+terrains."""
 from __future__ import annotations
 
 import os
@@ -11,6 +12,9 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+
+from blender_addon.terrain.model import MultiResTerrain, TerrainLevel
+from board.conventions import Body
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "test-token-0123456789abcdef"
@@ -137,3 +141,16 @@ def write_huge_sparse_tif(path: Path, size: int = 40_000) -> Path:
     ds.SetProjection(srs.ExportToWkt())
     ds = None
     return path
+
+
+def analytic_terrain(fn, levels, *, center=(0.0, 0.0), radius_m=1e5) -> MultiResTerrain:
+    """Nested square levels [(half_extent_m, cell_m), ...] (finest first) sampling fn(x, y) at cell centres."""
+    out = []
+    for half, cell in levels:
+        n = int(round(2 * half / cell))
+        x0, y0 = center[0] - half, center[1] + half
+        xs = x0 + (np.arange(n) + 0.5) * cell
+        ys = y0 - (np.arange(n) + 0.5) * cell
+        X, Y = np.meshgrid(xs, ys)
+        out.append(TerrainLevel(np.asarray(fn(X, Y), dtype=np.float32), x0, y0, cell))
+    return MultiResTerrain(out, 'LOCAL_CS["analytic"]', Body("custom", radius_m), center)

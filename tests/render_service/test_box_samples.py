@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from skyloc_service_test_helpers import analytic_terrain
 
-from blender_addon.terrain.model import MultiResTerrain, TerrainLevel
+from blender_addon.terrain.model import MultiResTerrain
 from board.acquisition import PanoramaGeometry
-from board.conventions import Body
 from board.errors import FormatError, InvalidInputError
 from board.extraction import panorama_line_to_skyline
 from board.skydb import AZIMUTH_SUBSAMPLES, GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, plan_tiles
@@ -33,12 +33,7 @@ def _rim(X, Y):
 
 @pytest.fixture(scope="module")
 def rim_terrain() -> MultiResTerrain:
-    half, cell = 4600.0, 4.0
-    n = int(2 * half / cell)
-    xs = -half + (np.arange(n) + 0.5) * cell
-    X, Y = np.meshgrid(xs, -xs)
-    return MultiResTerrain([TerrainLevel(_rim(X, Y).astype(np.float32), -half, half, cell)], 'LOCAL_CS["rim"]',
-                           Body("custom", 1.0e7), (0.0, 0.0))
+    return analytic_terrain(_rim, [(4600.0, 4.0)], radius_m=1.0e7)
 
 
 def test_bad_subsample_counts_are_refused_with_the_range():

@@ -12,10 +12,9 @@ import math
 
 import numpy as np
 import pytest
+from skyloc_service_test_helpers import analytic_terrain
 
 from benchmarks.campaign_precision import horizon_jacobian, main, precision_from_jacobian, share_within
-from blender_addon.terrain.model import MultiResTerrain, TerrainLevel
-from board.conventions import Body
 from render_service.renderers import raymarch
 from render_service.renderers.base import RenderSpec
 
@@ -35,14 +34,7 @@ def rim_grad(x, y):
 
 @pytest.fixture(scope="module")
 def terrain():
-    levels = []
-    for half, cell in ((3200.0, 4.0), (12800.0, 32.0)):
-        n = int(round(2 * half / cell))
-        xs = -half + (np.arange(n) + 0.5) * cell
-        ys = half - (np.arange(n) + 0.5) * cell
-        X, Y = np.meshgrid(xs, ys)
-        levels.append(TerrainLevel(rim(X, Y).astype(np.float32), -half, half, cell))
-    return MultiResTerrain(levels, 'LOCAL_CS["analytic"]', Body("flat-ish", 1e12), (0.0, 0.0))
+    return analytic_terrain(rim, [(3200.0, 4.0), (12800.0, 32.0)], radius_m=1e12)
 
 
 def horizon_fn(terrain):

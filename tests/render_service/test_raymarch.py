@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from skyloc_service_test_helpers import analytic_terrain
 
 from blender_addon.terrain.model import DemRaster, MultiResTerrain, TerrainLevel
 from board.conventions import BODIES, Body, horizon_dip_deg
@@ -17,19 +18,6 @@ from board.skydb import GridSpec, plan_tiles
 from render_service.renderers import raymarch
 from render_service.renderers.base import RenderSpec, get_renderer
 from render_service.renderers.reference import accurate_horizon_with_distance, brute_force_horizon_with_distance
-
-
-def analytic_terrain(fn, levels, *, center=(0.0, 0.0), radius_m=1e5) -> MultiResTerrain:
-    """Nested square levels [(half_extent_m, cell_m), ...] (finest first) sampling fn(x, y) at cell centres."""
-    out = []
-    for half, cell in levels:
-        n = int(round(2 * half / cell))
-        x0, y0 = center[0] - half, center[1] + half
-        xs = x0 + (np.arange(n) + 0.5) * cell
-        ys = y0 - (np.arange(n) + 0.5) * cell
-        X, Y = np.meshgrid(xs, ys)
-        out.append(TerrainLevel(np.asarray(fn(X, Y), dtype=np.float32), x0, y0, cell))
-    return MultiResTerrain(out, 'LOCAL_CS["analytic"]', Body("custom", radius_m), center)
 
 
 def ray_truth(fn, x, y, z_eye, az_deg, c_per_m, d_max, n=200_000):
