@@ -7,6 +7,9 @@ Layout (format ``skyloc-skydb``, version 1)::
       elevation/                int16 (ny, nx, n_az), units of ``elevation_scale_deg`` (0.005 degree;
                                 0.01 in stores written before it was a choice), chunks (tile, tile, n_az)
       distance/    (optional)   uint16 (ny, nx, n_az), horizon distance in 10 m units
+      ground/      (optional)   float32 (ny, nx), chunks (tile, tile): the ground height under each
+                                position, metres (the terrain's finest level, bilinear; the eye is
+                                ``camera_height_m`` above it), NaN = unknown
       tile_done/                uint8 (n_tiles_y, n_tiles_x), chunks (1, 1): 1 once a tile is written
 
 Row ``i`` / column ``j`` of the grid is the position
@@ -164,6 +167,9 @@ class SkyDBMeta:
     dem_sha256: str = ""
     tile_size: int = DEFAULT_TILE
     has_distance: bool = False
+    #: the store holds each position's ground height (``ground`` array): the parallax interpolation moves the eye
+    #: by the true height differences between nodes instead of estimating them from the skylines
+    has_ground: bool = False
     #: one int16 unit of the elevations, degrees (one of SUPPORTED_ELEVATION_SCALES_DEG)
     elevation_scale_deg: float = ELEVATION_SCALE_DEG
     #: rays averaged per sample (1: point samples, the only kind before this attribute existed)
@@ -285,7 +291,7 @@ class SkyDBWriter:
         mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
         keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
                 "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
-                "has_distance", "elevation_scale_deg", "azimuth_subsamples")
+                "has_distance", "has_ground", "elevation_scale_deg", "azimuth_subsamples")
         diff = [k for k in keys if mine.get(k) != theirs.get(k)]
         if diff:
             raise InvalidInputError(
@@ -332,6 +338,9 @@ class SkyDBWriter:
             group.create_array("distance", shape=(g.ny, g.nx, meta.n_azimuth), chunks=(t, t, meta.n_azimuth),
                                dtype="uint16", fill_value=int(DISTANCE_MISSING),
                                dimension_names=("y", "x", "azimuth"))
+        if meta.has_ground:
+            group.create_array("ground", shape=(g.ny, g.nx), chunks=(t, t), dtype="float32", fill_value=float("nan"),
+                               dimension_names=("y", "x"))
         nty, ntx = math.ceil(g.ny / t), math.ceil(g.nx / t)
         group.create_array("tile_done", shape=(nty, ntx), chunks=(1, 1), dtype="uint8", fill_value=0)
         group.attrs.update(meta.to_attrs())
@@ -346,8 +355,11 @@ class SkyDBWriter:
         done = self.done_mask()
         return [t for t in self.tiles if not done[t.ti, t.tj]]
 
-    def write_tile(self, tile: Tile, elevation_deg: np.ndarray, distance_m: np.ndarray | None = None) -> None:
-        """Write one whole tile: ``elevation_deg`` (nrows, ncols, n_az) degrees, NaN = missing."""
+    def write_tile(self, tile: Tile, elevation_deg: np.ndarray, distance_m: np.ndarray | None = None,
+                   ground_m: np.ndarray | None = None) -> None:
+        """Write one whole tile: ``elevation_deg`` (nrows, ncols, n_az) degrees, NaN = missing; with
+        :attr:`SkyDBMeta.has_distance` the horizon distances (same shape, metres), with
+        :attr:`SkyDBMeta.has_ground` the ground heights under the positions (nrows, ncols, metres)."""
         shape = (tile.nrows, tile.ncols, self.meta.n_azimuth)
         if elevation_deg.shape != shape:
             raise InvalidInputError(f"tile {tile.key} expects elevations of shape {shape}, got {elevation_deg.shape}")
@@ -355,12 +367,18 @@ class SkyDBWriter:
             raise InvalidInputError(f"tile {tile.key} of {self.path} is already written; tiles are written once")
         sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
         self._group["elevation"][sl] = quantize_elevation(elevation_deg, self.meta.elevation_scale_deg)
+        if self.meta.has_ground:
+            if ground_m is None or np.shape(ground_m) != shape[:2]:
+                raise InvalidInputError(f"this database stores ground heights: pass ground_m of shape {shape[:2]}, "
+                                        f"got {None if ground_m is None else np.shape(ground_m)}")
         if self.meta.has_distance:
             if distance_m is None:
                 raise InvalidInputError("this database stores horizon distances: pass distance_m")
             d = np.asarray(distance_m, dtype=np.float64) / DISTANCE_SCALE_M
             dq = np.where(np.isfinite(d), np.clip(np.round(d), 0, 65534), DISTANCE_MISSING).astype(np.uint16)
             self._group["distance"][sl] = dq
+        if self.meta.has_ground:
+            self._group["ground"][sl] = np.asarray(ground_m, dtype=np.float32)
         self._group["tile_done"][tile.ti, tile.tj] = 1
 
     def finalize(self) -> "SkyDB":
@@ -461,6 +479,8 @@ class SkyDB:
         total_mb = array_mb * (2 if meta.has_distance else 1)
         #: chunks kept in memory ((array name, chunk row, chunk col) -> int16/uint16 array), or None
         self._cache: dict | None = {} if complete and 0 < total_mb <= cache_mb else None
+        #: ground-height chunks read so far ((chunk row, chunk col) -> float32 array, 16 KB each at 64 x 64)
+        self._ground: dict[tuple[int, int], np.ndarray] = {}
 
     @classmethod
     def open(cls, path: str | os.PathLike, *, cache_mb: float = DEFAULT_CACHE_MB) -> "SkyDB":
@@ -496,6 +516,15 @@ class SkyDB:
                               f"metadata says {(g.ny, g.nx, meta.n_azimuth)} int16")
         if tuple(done.shape) != (math.ceil(g.ny / meta.tile_size), math.ceil(g.nx / meta.tile_size)):
             raise FormatError(f"{path} is corrupt: tile_done has shape {done.shape}")
+        if meta.has_ground:
+            try:
+                ground = group["ground"]
+            except Exception as exc:
+                raise FormatError(f"{path} is corrupt: its metadata says it holds ground heights but the ground "
+                                  f"array cannot be opened ({type(exc).__name__}: {exc}); re-render it") from exc
+            if tuple(ground.shape) != (g.ny, g.nx):
+                raise FormatError(f"{path} is corrupt: ground array has shape {ground.shape}, metadata says "
+                                  f"{(g.ny, g.nx)}")
         return cls(path, meta, group, bool(attrs.get("complete", False)), cache_mb=cache_mb)
 
     @property
@@ -566,6 +595,32 @@ class SkyDB:
         d[q == DISTANCE_MISSING] = np.nan
         return d
 
+    def read_ground(self, tile: Tile) -> np.ndarray | None:
+        """Ground heights under the positions of ``tile`` (nrows, ncols; metres, float32, NaN = unknown), or None
+        if the store does not hold them (stores written before session 26).  Chunks are kept once read (a
+        query reads the few around its candidates; the whole array of a 7 x 7 km grid at 5 m is 8 MB)."""
+        if not self.meta.has_ground:
+            return None
+        t = self.meta.tile_size
+        r1, c1 = tile.row0 + tile.nrows, tile.col0 + tile.ncols
+        out = np.full((tile.nrows, tile.ncols), np.nan, dtype=np.float32)
+        for ci in range(tile.row0 // t, (r1 - 1) // t + 1 if tile.nrows else 0):
+            for cj in range(tile.col0 // t, (c1 - 1) // t + 1 if tile.ncols else 0):
+                chunk = self._ground.get((ci, cj))
+                if chunk is None:
+                    try:
+                        chunk = np.asarray(self._group["ground"][ci * t:(ci + 1) * t, cj * t:(cj + 1) * t],
+                                           dtype=np.float32)
+                    except Exception as exc:  # zarr raises a variety of errors on damaged stores
+                        raise FormatError(f"{self.path}: cannot read the ground heights of tile {tile.key} "
+                                          f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
+                    self._ground[(ci, cj)] = chunk
+                a0, a1 = max(tile.row0, ci * t), min(r1, (ci + 1) * t)
+                b0, b1 = max(tile.col0, cj * t), min(c1, (cj + 1) * t)
+                out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
+                    chunk[a0 - ci * t:a1 - ci * t, b0 - cj * t:b1 - cj * t]
+        return out
+
     def iter_tiles(self) -> Iterator[tuple[Tile, np.ndarray]]:
         """Yield (tile, float32 elevations in degrees) one tile at a time."""
         for t in self.tiles:
@@ -613,6 +668,8 @@ class SkyDB:
             "tile_size": m.tile_size,
             "elevation_scale_deg": m.elevation_scale_deg,
             "azimuth_subsamples": m.azimuth_subsamples,
+            "has_distance": m.has_distance,
+            "has_ground": m.has_ground,
             "tiles_done": self.n_tiles_done(),
             "tiles_total": len(self.tiles),
             "complete": self.complete,

@@ -116,7 +116,7 @@ def prepare_job(dem_path, *, center_xy: tuple[float, float], size_m: float, step
         azimuth_start_deg=float(spec.azimuth_start_deg), body=the_body.name,
         body_radius_m=float(the_body.radius_m), refraction_k=float(spec.refraction_k), renderer=renderer,
         renderer_version=str(getattr(sys.modules[render_fn.__module__], "__version__", "0")),
-        dem_sha256=info.sha256, tile_size=int(tile_size), has_distance=True, elevation_scale_deg=unit,
+        dem_sha256=info.sha256, tile_size=int(tile_size), has_distance=True, has_ground=True, elevation_scale_deg=unit,
         azimuth_subsamples=int(spec.azimuth_subsamples),
         extra={"dem_path": str(Path(dem_path).resolve()), "center_xy_m": [float(center_xy[0]), float(center_xy[1])],
                "size_m": float(size_m), "step_m": float(step_m),
@@ -190,8 +190,18 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
                                 f"asks for {spec.azimuth_subsamples}: render it with --azimuth-subsamples "
                                 f"{w.meta.azimuth_subsamples} or into another --out")
     res = render_tile_sampled(_resolve_renderer(renderer), terrain, w.meta.grid, tile, spec)
-    w.write_tile(tile, res.elevation_deg, res.distance_m if w.meta.has_distance else None)
+    w.write_tile(tile, res.elevation_deg, res.distance_m if w.meta.has_distance else None,
+                 tile_ground_m(terrain, w.meta.grid, tile) if w.meta.has_ground else None)
     return True
+
+
+def tile_ground_m(terrain: MultiResTerrain, grid: GridSpec, tile: Tile) -> np.ndarray:
+    """(nrows, ncols) ground heights (metres) under a tile's positions: the terrain's finest level, bilinear,
+    where the renderers put the eye (``camera_height_m`` above it)."""
+    ii, jj = np.meshgrid(np.arange(tile.row0, tile.row0 + tile.nrows), np.arange(tile.col0, tile.col0 + tile.ncols),
+                         indexing="ij")
+    x, y = grid.xy(ii, jj)
+    return terrain.finest.height_at(x, y).astype(np.float32)
 
 
 def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,

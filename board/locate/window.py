@@ -14,7 +14,8 @@ from board.skydb import GridSpec, SkyDB, Tile
 
 def local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = False) -> LocalDB:
     """Node skylines within ``half`` nodes of (row, col); with ``parallax`` and stored horizon distances,
-    a window that interpolates with parallax (see :mod:`board.pose.parallax`)."""
+    a window that interpolates with parallax (see :mod:`board.pose.parallax`), moving the eye by the stored
+    ground heights when the store holds them."""
     g = db.grid
     r0, c0 = max(row - half, 0), max(col - half, 0)
     r1, c1 = min(row + half + 1, g.ny), min(col + half + 1, g.nx)
@@ -30,8 +31,10 @@ def local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = F
     dist = db.read_distance(win) if parallax and db.meta.has_distance else None
     if dist is None:
         return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg)
+    ground = db.read_ground(win)
     return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg, dist=dist.astype(np.float64),
-                   cell_m=(g.geotransform[1], g.geotransform[5]))
+                   cell_m=(g.geotransform[1], g.geotransform[5]),
+                   ground=None if ground is None else ground.astype(np.float64))
 
 
 def position_limits(grid: GridSpec, region: Region) -> dict[str, tuple[float, float]]:

@@ -34,6 +34,10 @@ class LocalDB:
     With ``dist`` (horizon distances, metres, same shape) and ``cell_m`` (metres per column step
     east, metres per row step north: the geotransform's x step and y step), :meth:`skyline_at`
     interpolates with parallax (:mod:`board.pose.parallax`) instead of blending the skylines.
+    ``ground`` (nr, nc), the ground heights under the nodes (metres; a store's ``ground`` array), moves
+    the eye between nodes by their true height differences; without it (or where a corner's is NaN)
+    they are estimated from the skylines, which reads a slope's height steps at a half or less of
+    their size (docs/matching.md, "Eye heights between nodes").
     """
 
     el: np.ndarray
@@ -42,6 +46,7 @@ class LocalDB:
     az_start_deg: float
     dist: np.ndarray | None = None
     cell_m: tuple[float, float] | None = None
+    ground: np.ndarray | None = None
     _rep: Reprojector | None = field(default=None, repr=False)
     _heights: dict = field(default_factory=dict, repr=False)  # cell corners -> relative eye heights (m)
     _last: tuple = field(default=(None, None), repr=False)  # (row, col) -> skyline of the last call
@@ -104,14 +109,23 @@ class LocalDB:
             self._rep = Reprojector(self.n, self.az_start_deg)
         z = self._heights.get(corners)
         if z is None:
-            z = self._heights[corners] = self._rep.relative_heights(
-                list(nodes), dists, [(b * sx, a * sy) for a, b in corners])
+            z = self._heights[corners] = self.corner_heights(corners, nodes, dists)
         zp = float(w @ z)
         preds = np.empty_like(nodes)
         for k, (a, b) in enumerate(corners):
             sk = self._rep.skyline(nodes[k], dists[k], (fc - b) * sx, (fr - a) * sy, zp - z[k])
             preds[k] = np.where(np.isfinite(sk), sk, bilinear)
         return preds, w
+
+    def corner_heights(self, corners, nodes: np.ndarray, dists: list[np.ndarray]) -> np.ndarray:
+        """Eye heights (metres, mean zero) of the cell's four ``corners`` (window indices): the stored ground
+        heights when all four are known, else estimated from their skylines (``nodes``, ``dists``)."""
+        if self.ground is not None:
+            z = np.array([self.ground[a, b] for a, b in corners], dtype=np.float64)
+            if np.isfinite(z).all():
+                return z - z.mean()
+        sx, sy = self.cell_m
+        return self._rep.relative_heights(list(nodes), dists, [(b * sx, a * sy) for a, b in corners])
 
     def sample(self, sky: np.ndarray, az_deg: np.ndarray) -> np.ndarray:
         """Skyline ``sky`` (N,) read at azimuths ``az_deg`` (periodic linear interpolation)."""

@@ -6,6 +6,7 @@ by 2-10 degrees in short runs, as a detector that followed a rock's outline woul
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -95,16 +96,22 @@ def test_masked_columns_are_reported_as_sectors_above_or_below_the_dem_skyline()
 
 
 def _assert_flags_only_where_the_grid_misses_the_horizon(w, x, y, heading, fix) -> None:
-    """Every sector ``fix`` reports for a clean level query at (x, y) lies within 1 deg of an azimuth where
-    the database interpolated at the true position (as the refinement does, with parallax) is more than
-    OUTLIER_MIN_DEG / 2 from the ray-marched horizon there (the independent truth)."""
+    """Every sector ``fix`` reports for a clean level query at (x, y) lies within 1 deg of an azimuth where the
+    database cannot represent the query: interpolated at the true position (as the refinement does, with
+    parallax) it is more than OUTLIER_MIN_DEG / 2 from the ray-marched horizon there (the independent truth),
+    or the horizon is so near that the fix's position error alone moves the interpolated skyline by that much
+    (a near slope, where a metre is a degree).  A flag on a far horizon the database holds would fail this."""
     from board.locate.window import local_db
 
     row, col = w.db.grid.ij(x, y)
-    interp = local_db(w.db, int(round(row)), int(round(col)), half=3, parallax=True).skyline_at(row, col)
+    frow, fcol = w.db.grid.ij(fix.x, fix.y)
+    loc = local_db(w.db, int(round(row)), int(round(col)), half=3, parallax=True)
+    interp = loc.skyline_at(row, col)
+    moved = loc.skyline_at(frow, fcol) if max(abs(frow - row), abs(fcol - col)) <= 2.5 else interp
     az = w.db.meta.azimuths_deg()
     t_az, t_el = w.horizon(x, y)
-    err = np.abs(interp - np.interp(az, np.append(t_az, 360.0), np.append(t_el, t_el[0])))
+    err = np.maximum(np.abs(interp - np.interp(az, np.append(t_az, 360.0), np.append(t_el, t_el[0]))),
+                     np.abs(moved - interp))
     for s in fix.above_dem + fix.below_dem:
         a0 = (s["from_deg"] + heading - 1.0) % 360.0
         width = (s["to_deg"] - s["from_deg"]) % 360.0 + 2.0
@@ -137,7 +144,9 @@ def test_near_rocks_above_the_horizon_are_flagged_and_do_not_move_the_fix(raymar
         hit = [a for a in fix.above_dem if (mid - a["from_deg"]) % 360.0 <= (a["to_deg"] - a["from_deg"]) % 360.0]
         assert hit and hit[0]["excess_deg"] > 1.0, (mid, fix.above_dem)
     assert len(fix.above_dem) == len(rocks)  # nothing else is called an obstruction
-    assert not fix.below_dem
+    # a sector below the database is reported only where the database itself misses the true horizon (a near
+    # slope the 5 m grid interpolates more than half a degree off at the true position)
+    _assert_flags_only_where_the_grid_misses_the_horizon(w, x, y, h, replace(fix, above_dem=[]))
     assert fix.to_json_dict()["above_dem_skyline"] == fix.above_dem
     # the clean query is flagged only where the database itself cannot represent the true horizon: a near
     # slope whose skyline the 5 m grid interpolates more than half a degree off at the true position
