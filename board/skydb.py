@@ -283,20 +283,31 @@ class SkyDBWriter:
         """The existing store at ``path`` if rendering ``meta`` there may resume it; InvalidInputError if not.
 
         A different database (grid, DEM, height, sampling, renderer...) is refused, and so is a partial
-        store started by another renderer version (its tiles would mix versions); a complete store of
-        another renderer version is accepted (with a warning if ``warn``).
+        store started by another renderer version or with(out) ground heights (its tiles would mix); a
+        complete store of another renderer version, or one without ground heights, is accepted (with a
+        warning if ``warn``).
         """
         path = Path(path)
         existing = SkyDB.open(path)
         mine, theirs = meta.to_attrs(), existing.meta.to_attrs()
         keys = ("geotransform", "nx", "ny", "n_azimuth", "azimuth_start_deg", "camera_height_m",
                 "body_radius_m", "refraction_k", "renderer", "dem_sha256", "tile_size", "crs_wkt",
-                "has_distance", "has_ground", "elevation_scale_deg", "azimuth_subsamples")
+                "has_distance", "elevation_scale_deg", "azimuth_subsamples")
         diff = [k for k in keys if mine.get(k) != theirs.get(k)]
         if diff:
             raise InvalidInputError(
                 f"{path} already holds a different skyline database (differs in {', '.join(diff)}); "
                 "choose another --out or delete it")
+        if bool(theirs.get("has_ground", False)) != bool(mine.get("has_ground", False)):
+            if not existing.complete:
+                raise InvalidInputError(
+                    f"{path} was partly rendered {'with' if theirs.get('has_ground') else 'without'} ground heights "
+                    f"and this render {'stores' if mine.get('has_ground') else 'does not store'} them (differs in "
+                    "has_ground): delete it (or choose another --out) to render it again from scratch")
+            if warn:
+                log.warning("%s is complete but holds no ground heights (rendered before skyloc stored them): kept "
+                            "as it is, its eye heights between nodes are estimated from the skylines; render it "
+                            "again into a new --out for the stored heights", path)
         old_v, new_v = theirs.get("renderer_version"), mine.get("renderer_version")
         if old_v != new_v:
             if not existing.complete:

@@ -6,9 +6,10 @@ and in elevation (the eye moves up or down with the ground), and the blend of tw
 copies is neither.  Here each node's horizon is turned back into 3-D points with the stored
 horizon distances, seen again from the wanted position, and the visible skyline taken as the
 upper envelope of the re-projected horizon line; the four corner predictions are then blended.
-The eye's height change between nodes is not stored in the database: it is estimated from the
-skylines themselves (a pair of nodes sees the same far points, shifted in elevation by
-``-dz / distance``).
+The eye's height change between nodes is the stored ground heights' (databases since session 26); for
+older stores it is estimated from the skylines themselves (a pair of nodes sees the same far points,
+shifted in elevation by ``-dz / distance``), an estimate biased low on slopes, where the near horizon
+is the ground's own sliding crest rather than a fixed point (docs/matching.md, "Eye heights between nodes").
 
 Units: metres for positions and distances (the database's CRS, x east, y north), degrees for
 azimuths (clockwise from grid north) and elevations.  Used by :class:`board.pose.refine.LocalDB`

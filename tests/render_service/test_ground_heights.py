@@ -82,13 +82,18 @@ def test_store_round_trip_of_ground_heights(tmp_path):
     shutil.rmtree(tmp_path / "db.zarr" / "ground")
     with pytest.raises(FormatError, match="ground"):
         SkyDB.open(tmp_path / "db.zarr")
-    # resuming a store of the other kind is refused, naming the difference
+    # a store written before ground heights: read without them; resumed by a render that stores them, refused
+    # while partial (its tiles would mix), kept as it is once complete (a campaign folder grown later)
     old = SkyDBMeta(grid=grid, camera_height_m=2.0, n_azimuth=36, tile_size=4, has_distance=True)
     w2 = SkyDBWriter.create(tmp_path / "old.zarr", old)
     assert SkyDB.open(tmp_path / "old.zarr").read_ground(win) is None
     with pytest.raises(InvalidInputError, match="has_ground"):
         SkyDBWriter.create(tmp_path / "old.zarr", meta)
-    del w2
+    for t in w2.tiles:
+        w2.write_tile(t, np.zeros((t.nrows, t.ncols, 36)), np.ones((t.nrows, t.ncols, 36)))
+    w2.finalize()
+    resumed = SkyDBWriter.create(tmp_path / "old.zarr", meta)
+    assert not resumed.meta.has_ground and not resumed.pending_tiles()
 
 
 def _window(hill):
