@@ -126,6 +126,10 @@ def info_cmd(store: str, as_json: bool) -> None:
     click.echo(f"  elevations  int16 in units of {s['elevation_scale_deg']:g} deg; "
                + ("point samples" if s["azimuth_subsamples"] == 1 else
                   f"each the mean of {s['azimuth_subsamples']} rays across its step"))
+    click.echo("  per node    " + ", ".join(
+        [("horizon distances (10 m units)" if s["has_distance"] else "no horizon distances"),
+         ("ground heights (the eye's steps between nodes)" if s["has_ground"] else
+          "no ground heights (eye steps estimated from the skylines; render again to store them)")]))
     click.echo(f"  renderer    {s['renderer']} v{s['renderer_version']}")
     click.echo(f"  tiles       {s['tiles_done']} of {s['tiles_total']} done ({s['tile_size']} x {s['tile_size']})")
     click.echo(f"  DEM sha256  {s['dem_sha256']}")
