@@ -70,7 +70,8 @@ def test_render_info_and_horizon(dem_path, tmp_path):
     u, v = (float(x) - gt[0]) / gt[1] - 0.5, (float(y) - gt[3]) / gt[5] - 0.5
     c0, r0 = int(np.floor(u)), int(np.floor(v))
     a, tu, tv = dem.array.astype(float), u - c0, v - r0
-    want = ((1 - tv) * ((1 - tu) * a[r0, c0] + tu * a[r0, c0 + 1]) + tv * ((1 - tu) * a[r0 + 1, c0] + tu * a[r0 + 1, c0 + 1]))
+    want = ((1 - tv) * ((1 - tu) * a[r0, c0] + tu * a[r0, c0 + 1])
+            + tv * ((1 - tu) * a[r0 + 1, c0] + tu * a[r0 + 1, c0 + 1]))
     from board.skydb import Tile
     assert float(db.read_ground(Tile(-1, -1, i, j, 1, 1))[0, 0]) == pytest.approx(want, abs=1e-3)
     # db horizon at the same position: same renderer, so the same skyline to the 0.005 deg quantum
