@@ -93,8 +93,6 @@ def floor_rows(run: Path, *, north: bool = False, fine: bool = True, ground: boo
     from board.skyline import Skyline
 
     db = SkyDB.open(run / "db.zarr")
-    if not ground:
-        db.meta.has_ground = False  # this reader only: read_ground then returns None
     window = db.meta.azimuth_step_deg if db.meta.azimuth_subsamples > 1 else 0.0   # query as the database samples
     poses, queries, fines = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north, fine=fine,
                                           window_deg=window)
@@ -103,7 +101,7 @@ def floor_rows(run: Path, *, north: bool = False, fine: bool = True, ground: boo
     for i, (p, el) in enumerate(zip(poses, queries)):
         fe = None if fines is None else fines[i]
         sky = Skyline(el, db.meta.azimuth_start_deg, step, {}, fe, None if fe is None else step / FINE_PER_STEP)
-        fix = locate(db, sky, mode="lost")
+        fix = locate(db, sky, mode="lost", stored_heights=ground)
         rows.append({"index": int(p["index"]), "status": fix.status,
                      "error_m": math.hypot(fix.x - p["x"], fix.y - p["y"]),
                      "sigma_x_m": fix.sigma_x_m, "sigma_y_m": fix.sigma_y_m, "sigma_heading_deg": fix.sigma_heading_deg,

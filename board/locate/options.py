@@ -41,6 +41,9 @@ class LocateOptions:
     reweight : run the final refinement weighted by the grid error (ablation switch; True as tuned)
     parallax : the weighted refinement interpolates with parallax when the database stores horizon
         distances (ablation switch; True as tuned)
+    stored_heights : the parallax interpolation moves the eye between nodes by the database's stored ground
+        heights when it holds them (False: estimated from the skylines, as for a store without them; ablation
+        switch, docs/matching.md "Eye heights between nodes")
     robust : mask the query columns the first fix cannot explain and locate again without them
         (:mod:`board.locate.robust`; a clean query is unaffected)
     align : a query with fine samples is located again, sampled on the database's azimuths at the first
@@ -60,6 +63,7 @@ class LocateOptions:
     position_sigma_m: float = 20.0
     reweight: bool = True
     parallax: bool = True
+    stored_heights: bool = True
     robust: bool = True
     align: bool = True
 

@@ -227,7 +227,7 @@ def _locate_once(db: SkyDB, skyline: Skyline, opts: LocateOptions, *,
             smap = smap2
     if opts.reweight and smap is not None:
         rew = reweighted(db, ref, c.theta, c.el, free=opts.free, tilt_prior=tp, region=smap.region,
-                         parallax=opts.parallax)
+                         parallax=opts.parallax, stored_heights=opts.stored_heights)
         if rew is not None:
             ref, local = rew
     if opts.robust and smap is not None:

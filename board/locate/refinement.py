@@ -153,11 +153,13 @@ def multistart(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, noise_de
 
 
 def reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region: Region, parallax: bool = True,
+               stored_heights: bool = True,
                iterations: int = REWEIGHT_ITERATIONS) -> tuple[Refined, LocalDB] | None:
     """Refine again with each sample weighted by 1 / (noise + model error at its azimuth).
 
     The database is interpolated with parallax when ``parallax`` is set and it stores horizon
-    distances (:mod:`board.pose.parallax`); the model error is
+    distances (:mod:`board.pose.parallax`), the eye moved by the stored ground heights when the store holds
+    them and ``stored_heights`` is set; the model error is
     :func:`board.locate.grid_error.model_error_samples`.  Azimuths whose horizon is close change
     fast between grid nodes, so the interpolated database is least reliable there; down-weighting
     them (iteratively reweighted least squares, the noise variance solved so that the weighted
@@ -174,7 +176,7 @@ def reweighted(db: SkyDB, ref: Refined, theta, el, *, free, tilt_prior, region: 
     for _ in range(iterations):
         v = cur.values
         r0, c0 = int(round(v["row"])), int(round(v["col"]))
-        local = local_db(db, r0, c0, half=3, parallax=parallax)
+        local = local_db(db, r0, c0, half=3, parallax=parallax, stored_heights=stored_heights)
         g2 = model_error_samples(local, v["row"], v["col"], cur.enu_az_deg)
         res_unw = cur.unweighted_residual
         s_n = noise_given_weights(res_unw ** 2, g2, max(res_unw.size - len(free) - 1, 1))

@@ -12,10 +12,11 @@ from board.pose.refine import LocalDB
 from board.skydb import GridSpec, SkyDB, Tile
 
 
-def local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = False) -> LocalDB:
+def local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = False,
+             stored_heights: bool = True) -> LocalDB:
     """Node skylines within ``half`` nodes of (row, col); with ``parallax`` and stored horizon distances,
     a window that interpolates with parallax (see :mod:`board.pose.parallax`), moving the eye by the stored
-    ground heights when the store holds them."""
+    ground heights when the store holds them and ``stored_heights`` is set (else estimated from the skylines)."""
     g = db.grid
     r0, c0 = max(row - half, 0), max(col - half, 0)
     r1, c1 = min(row + half + 1, g.ny), min(col + half + 1, g.nx)
@@ -31,7 +32,7 @@ def local_db(db: SkyDB, row: int, col: int, half: int = 2, *, parallax: bool = F
     dist = db.read_distance(win) if parallax and db.meta.has_distance else None
     if dist is None:
         return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg)
-    ground = db.read_ground(win)
+    ground = db.read_ground(win) if stored_heights else None
     return LocalDB(flat.reshape(el.shape), r0, c0, db.meta.azimuth_start_deg, dist=dist.astype(np.float64),
                    cell_m=(g.geotransform[1], g.geotransform[5]),
                    ground=None if ground is None else ground.astype(np.float64))

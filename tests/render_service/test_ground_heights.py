@@ -155,9 +155,7 @@ def test_database_floor_on_the_flank_with_and_without_ground_heights(hill, tmp_p
         x, y = rng.uniform(-15, 15, 2)
         q = _box_truth(hill, float(x), float(y))
         for use in (True, False):
-            d = SkyDB.open(path)
-            d.meta.has_ground = use
-            fix = locate(d, Skyline(q.astype(np.float32)), mode="lost")
+            fix = locate(db, Skyline(q.astype(np.float32)), mode="lost", stored_heights=use)
             errs[use].append(math.hypot(fix.x - x, fix.y - y))
             if use:
                 assert fix.status == "ok", fix.reason
