@@ -401,6 +401,20 @@ class SkyDBWriter:
         return SkyDB.open(self.path)
 
 
+def _paste_chunks(tile: Tile, ch: int, cw: int, out: np.ndarray, chunk_at) -> np.ndarray:
+    """Fill ``out`` (tile.nrows, tile.ncols, ...) from the chunks of ``ch`` x ``cw`` positions the tile overlaps;
+    ``chunk_at(ci, cj)`` returns chunk (ci, cj) (positions on its first two axes).  Returns ``out``."""
+    r1, c1 = tile.row0 + tile.nrows, tile.col0 + tile.ncols
+    for ci in range(tile.row0 // ch, (r1 - 1) // ch + 1):
+        for cj in range(tile.col0 // cw, (c1 - 1) // cw + 1):
+            chunk = chunk_at(ci, cj)
+            a0, a1 = max(tile.row0, ci * ch), min(r1, (ci + 1) * ch)
+            b0, b1 = max(tile.col0, cj * cw), min(c1, (cj + 1) * cw)
+            out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
+                chunk[a0 - ci * ch:a1 - ci * ch, b0 - cj * cw:b1 - cj * cw]
+    return out
+
+
 class _ChunkReader:
     """Reads whole chunks of one array of the store straight from their files (bytes + zstd codecs).
 
@@ -567,22 +581,20 @@ class SkyDB:
         out = np.empty((tile.nrows, tile.ncols, reader.chunks[2]), dtype=reader.dtype)
         if out.size == 0:
             return out
-        for ci in range(tile.row0 // ch, (r1 - 1) // ch + 1):
-            for cj in range(tile.col0 // cw, (c1 - 1) // cw + 1):
-                chunk = None if cache is None else cache.get((name, ci, cj))
-                if chunk is None:
-                    try:
-                        chunk = reader.chunk((ci, cj, 0))
-                    except FormatError as exc:
-                        raise FormatError(f"cannot read tile {tile.key} of {name}: {exc}") from exc
-                    if cache is not None:  # edge chunks trimmed to the array: the cache holds the array's size
-                        chunk = np.ascontiguousarray(chunk[:reader.shape[0] - ci * ch, :reader.shape[1] - cj * cw])
-                        cache[(name, ci, cj)] = chunk
-                a0, a1 = max(tile.row0, ci * ch), min(r1, (ci + 1) * ch)
-                b0, b1 = max(tile.col0, cj * cw), min(c1, (cj + 1) * cw)
-                out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
-                    chunk[a0 - ci * ch:a1 - ci * ch, b0 - cj * cw:b1 - cj * cw]
-        return out
+
+        def chunk_at(ci: int, cj: int) -> np.ndarray:
+            chunk = None if cache is None else cache.get((name, ci, cj))
+            if chunk is None:
+                try:
+                    chunk = reader.chunk((ci, cj, 0))
+                except FormatError as exc:
+                    raise FormatError(f"cannot read tile {tile.key} of {name}: {exc}") from exc
+                if cache is not None:  # edge chunks trimmed to the array: the cache holds the array's size
+                    chunk = np.ascontiguousarray(chunk[:reader.shape[0] - ci * ch, :reader.shape[1] - cj * cw])
+                    cache[(name, ci, cj)] = chunk
+            return chunk
+
+        return _paste_chunks(tile, ch, cw, out, chunk_at)
 
     @property
     def cached_mb(self) -> float:
@@ -613,24 +625,23 @@ class SkyDB:
         if not self.meta.has_ground:
             return None
         t = self.meta.tile_size
-        r1, c1 = tile.row0 + tile.nrows, tile.col0 + tile.ncols
         out = np.full((tile.nrows, tile.ncols), np.nan, dtype=np.float32)
-        for ci in range(tile.row0 // t, (r1 - 1) // t + 1 if tile.nrows else 0):
-            for cj in range(tile.col0 // t, (c1 - 1) // t + 1 if tile.ncols else 0):
-                chunk = self._ground.get((ci, cj))
-                if chunk is None:
-                    try:
-                        chunk = np.asarray(self._group["ground"][ci * t:(ci + 1) * t, cj * t:(cj + 1) * t],
-                                           dtype=np.float32)
-                    except Exception as exc:  # zarr raises a variety of errors on damaged stores
-                        raise FormatError(f"{self.path}: cannot read the ground heights of tile {tile.key} "
-                                          f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
-                    self._ground[(ci, cj)] = chunk
-                a0, a1 = max(tile.row0, ci * t), min(r1, (ci + 1) * t)
-                b0, b1 = max(tile.col0, cj * t), min(c1, (cj + 1) * t)
-                out[a0 - tile.row0:a1 - tile.row0, b0 - tile.col0:b1 - tile.col0] = \
-                    chunk[a0 - ci * t:a1 - ci * t, b0 - cj * t:b1 - cj * t]
-        return out
+        if out.size == 0:
+            return out
+
+        def chunk_at(ci: int, cj: int) -> np.ndarray:
+            chunk = self._ground.get((ci, cj))
+            if chunk is None:
+                try:
+                    chunk = np.asarray(self._group["ground"][ci * t:(ci + 1) * t, cj * t:(cj + 1) * t],
+                                       dtype=np.float32)
+                except Exception as exc:  # zarr raises a variety of errors on damaged stores
+                    raise FormatError(f"{self.path}: cannot read the ground heights of tile {tile.key} "
+                                      f"({type(exc).__name__}: {exc}); the store is truncated or corrupt") from exc
+                self._ground[(ci, cj)] = chunk
+            return chunk
+
+        return _paste_chunks(tile, t, t, out, chunk_at)
 
     def iter_tiles(self) -> Iterator[tuple[Tile, np.ndarray]]:
         """Yield (tile, float32 elevations in degrees) one tile at a time."""

@@ -16,6 +16,7 @@ and the demo call.  All coordinates are metres in the DEM's metric working CRS (
 from __future__ import annotations
 
 import logging
+import math
 import shutil
 import sys
 from dataclasses import dataclass, field, replace
@@ -26,7 +27,7 @@ import numpy as np
 
 from blender_addon.terrain.model import MultiResTerrain
 from board.conventions import Body, body_from_name
-from board.errors import InvalidInputError
+from board.errors import InvalidInputError, NoDataError
 from board.skydb import ELEVATION_SCALE_DEG, GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, Tile, checked_elevation_scale
 from render_service.renderers.base import RenderSpec, get_renderer, render_tile_sampled
 from render_service.renderers.raymarch import check_positions_inside
@@ -196,12 +197,20 @@ def render_and_write_tile(writer_path, terrain: MultiResTerrain, tile: Tile, spe
 
 
 def tile_ground_m(terrain: MultiResTerrain, grid: GridSpec, tile: Tile) -> np.ndarray:
-    """(nrows, ncols) ground heights (metres) under a tile's positions: the terrain's finest level, bilinear,
-    where the renderers put the eye (``camera_height_m`` above it)."""
-    ii, jj = np.meshgrid(np.arange(tile.row0, tile.row0 + tile.nrows), np.arange(tile.col0, tile.col0 + tile.ncols),
-                         indexing="ij")
-    x, y = grid.xy(ii, jj)
-    return terrain.finest.height_at(x, y).astype(np.float32)
+    """(nrows, ncols) ground heights (metres) under a tile's positions, NaN where the terrain has none: the
+    eye's ground of the renderers (:func:`blender_addon.core.terrain_mesh.sample_height`, bilinear on the finest
+    level; ``camera_height_m`` above it)."""
+    from blender_addon.core.terrain_mesh import sample_height  # noqa: PLC0415
+
+    def ground(i: int, j: int) -> float:
+        x, y = grid.xy(i, j)
+        try:
+            return sample_height(terrain, float(x), float(y))
+        except NoDataError:
+            return math.nan
+
+    return np.array([[ground(i, j) for j in range(tile.col0, tile.col0 + tile.ncols)]
+                     for i in range(tile.row0, tile.row0 + tile.nrows)], dtype=np.float32)
 
 
 def render_database(dem_path, *, center_xy: tuple[float, float], size_m: float, step_m: float,

@@ -72,24 +72,6 @@ class TerrainLevel:
         rows, cols = self.array.shape
         return self.x0, self.y0 - rows * self.cell_m, self.x0 + cols * self.cell_m, self.y0
 
-    def height_at(self, x_m, y_m) -> np.ndarray:
-        """Ground height (metres) at points (x, y metres, this level's CRS): the bilinear surface through the cell
-        centres, the surface the ray-marcher puts the eye on (``render_service.renderers.raymarch``).  NaN outside
-        the cell centres' hull or where a corner has no data."""
-        x = np.asarray(x_m, dtype=np.float64)
-        y = np.asarray(y_m, dtype=np.float64)
-        rows, cols = self.array.shape
-        u = (x - self.x0) / self.cell_m - 0.5
-        v = (self.y0 - y) / self.cell_m - 0.5
-        inside = (u >= 0) & (v >= 0) & (u <= cols - 1) & (v <= rows - 1)
-        c0 = np.clip(np.floor(u), 0, max(cols - 2, 0)).astype(np.intp)
-        r0 = np.clip(np.floor(v), 0, max(rows - 2, 0)).astype(np.intp)
-        c1, r1 = np.minimum(c0 + 1, cols - 1), np.minimum(r0 + 1, rows - 1)
-        tu, tv = np.clip(u - c0, 0.0, 1.0), np.clip(v - r0, 0.0, 1.0)
-        a = self.array.astype(np.float64, copy=False)
-        z = ((1 - tv) * ((1 - tu) * a[r0, c0] + tu * a[r0, c1]) + tv * ((1 - tu) * a[r1, c0] + tu * a[r1, c1]))
-        return np.where(inside, z, np.nan)
-
 
 @dataclass
 class MultiResTerrain:

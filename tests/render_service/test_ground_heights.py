@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from skyloc_service_test_helpers import analytic_terrain
 
+from blender_addon.core.terrain_mesh import sample_height
 from board.errors import FormatError, InvalidInputError
 from board.pose.refine import LocalDB
 from board.skydb import GridSpec, SkyDB, SkyDBMeta, SkyDBWriter, plan_tiles
@@ -52,13 +53,17 @@ def test_ground_height_is_the_bilinear_surface_the_eye_stands_on():
     plane = analytic_terrain(lambda X, Y: 0.7 * X - 0.3 * Y + 12.0, [(50.0, 5.0)], radius_m=RADIUS_M)
     rng = np.random.default_rng(5)
     x, y = rng.uniform(-40, 40, 50), rng.uniform(-40, 40, 50)
-    np.testing.assert_allclose(plane.finest.height_at(x, y), 0.7 * x - 0.3 * y + 12.0, atol=1e-4)
-    assert np.isnan(plane.finest.height_at(49.0, 0.0))  # beyond the outer cell centres: no ground
+    np.testing.assert_allclose([sample_height(plane, a, b) for a, b in zip(x, y)], 0.7 * x - 0.3 * y + 12.0,
+                               atol=1e-4)
     # a tile's ground heights, as the database stores them, are that surface at the grid's positions
     grid = GridSpec.from_center((3.0, -4.0), size_m=10.0, step_m=5.0)
     g = tile_ground_m(plane, grid, plan_tiles(grid, 8)[0])
     gx, gy = grid.xy(*np.mgrid[0:3, 0:3])
     np.testing.assert_allclose(g, 0.7 * gx - 0.3 * gy + 12.0, atol=1e-4)
+    # beyond the outer cell centres there is no ground: NaN in the tile, not an error
+    edge = GridSpec.from_center((47.5, 0.0), size_m=5.0, step_m=5.0)    # nodes at x = 45 and 50
+    g = tile_ground_m(plane, edge, plan_tiles(edge, 8)[0])
+    assert np.isfinite(g[:, 0]).all() and np.isnan(g[:, 1]).all()
 
 
 def test_store_round_trip_of_ground_heights(tmp_path):
