@@ -376,15 +376,15 @@ class SkyDBWriter:
             raise InvalidInputError(f"tile {tile.key} expects elevations of shape {shape}, got {elevation_deg.shape}")
         if self._group["tile_done"][tile.ti, tile.tj]:  # this tile's flag only, not the whole mask
             raise InvalidInputError(f"tile {tile.key} of {self.path} is already written; tiles are written once")
+        if self.meta.has_ground and (ground_m is None or np.shape(ground_m) != shape[:2]):
+            raise InvalidInputError(f"this database stores ground heights: pass ground_m of shape {shape[:2]}, "
+                                    f"got {None if ground_m is None else np.shape(ground_m)}")
+        if self.meta.has_distance and distance_m is None:
+            raise InvalidInputError("this database stores horizon distances: pass distance_m")
+        # every check above, before anything is written
         sl = (slice(tile.row0, tile.row0 + tile.nrows), slice(tile.col0, tile.col0 + tile.ncols))
         self._group["elevation"][sl] = quantize_elevation(elevation_deg, self.meta.elevation_scale_deg)
-        if self.meta.has_ground:
-            if ground_m is None or np.shape(ground_m) != shape[:2]:
-                raise InvalidInputError(f"this database stores ground heights: pass ground_m of shape {shape[:2]}, "
-                                        f"got {None if ground_m is None else np.shape(ground_m)}")
         if self.meta.has_distance:
-            if distance_m is None:
-                raise InvalidInputError("this database stores horizon distances: pass distance_m")
             d = np.asarray(distance_m, dtype=np.float64) / DISTANCE_SCALE_M
             dq = np.where(np.isfinite(d), np.clip(np.round(d), 0, 65534), DISTANCE_MISSING).astype(np.uint16)
             self._group["distance"][sl] = dq

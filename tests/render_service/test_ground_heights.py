@@ -74,7 +74,8 @@ def test_store_round_trip_of_ground_heights(tmp_path):
     ground = rng.uniform(-500, 9000, (10, 10)).astype(np.float32)
     t0 = w.tiles[0]
     with pytest.raises(InvalidInputError, match="ground heights"):
-        w.write_tile(t0, np.zeros((4, 4, 36)), np.ones((4, 4, 36)))
+        w.write_tile(t0, np.full((4, 4, 36), 7.0), np.ones((4, 4, 36)))
+    assert np.isnan(SkyDB.open(tmp_path / "db.zarr").read_tile(t0)).all()  # refused before anything was written
     for t in w.tiles:
         sl = np.s_[t.row0:t.row0 + t.nrows, t.col0:t.col0 + t.ncols]
         w.write_tile(t, np.zeros((t.nrows, t.ncols, 36)), np.ones((t.nrows, t.ncols, 36)), ground[sl])
