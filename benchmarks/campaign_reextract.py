@@ -1,6 +1,7 @@
 """Re-extract and re-locate a finished campaign's panoramas with the code as it is now.
 
-A campaign (``skyloc campaign --out RUN``) keeps every rendered panorama (``cases/<id>/panorama``),
+A campaign (``skyloc campaign --out RUN``) keeps every rendered panorama (``cases/<id>/panorama``) and
+NavCam acquisition (``cases/<id>/acquisition``, scored as the look's name with ``-navcam``),
 the ray-marched true horizon of every pose (``truth.npz``) and its database (``db.zarr``).  Running
 the extraction and the matcher again on those renders measures a change of the image chain on the
 same pictures, without rendering them again (minutes instead of a campaign's half hour), and the
@@ -30,15 +31,23 @@ from pathlib import Path
 import numpy as np
 
 
+#: the product folder and manifest of each case kind that has pictures
+PRODUCTS = {"panorama": ("panorama", "panorama.json"), "acquisition": ("acquisition", "acquisition.json")}
+
+
 def _cases(run: Path, looks: set[str] | None) -> list[tuple[Path, dict]]:
-    """(case folder, its row) of every finished panorama case of ``run`` whose preset is in ``looks``."""
+    """(case folder, its row) of every finished panorama or NavCam acquisition case of ``run`` whose preset
+    is in ``looks``."""
     out = []
     for folder in sorted((run / "cases").iterdir()):
         row_path = folder / "row.json"
-        if not row_path.is_file() or not (folder / "panorama" / "panorama.json").is_file():
+        if not row_path.is_file():
             continue
         row = json.loads(row_path.read_text())
-        if row.get("kind") != "panorama" or (looks and row.get("preset") not in looks):
+        product = PRODUCTS.get(row.get("kind"))
+        if product is None or not (folder / product[0] / product[1]).is_file():
+            continue
+        if looks and row.get("preset") not in looks:
             continue
         out.append((folder, row))
     return out
@@ -62,7 +71,8 @@ def monochrome(image: np.ndarray, transfer: str) -> np.ndarray:
 
 def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None, transfer: str | None = None,
                   options: dict | None = None, grey: bool = False) -> dict:
-    """Extract, locate (lost in space against the run's database) and score one panorama case.
+    """Extract, locate (lost in space against the run's database) and score one panorama or acquisition case
+    (an acquisition's panorama is levelled with its manifest's attitude, as the campaign does).
 
     detector : :class:`board.detect.DetectorParams` fields to change (a variant of the detector);
     options : :class:`board.extraction.ExtractionOptions` fields to change (such as ``clipped_sky_gain``);
@@ -71,8 +81,9 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     """
     from dataclasses import replace
 
-    from board.acquisition import load_panorama
+    from board.acquisition import load_acquisition, load_panorama
     from board.extraction import ExtractionOptions, extract_from_panorama
+    from board.panorama import build_panorama
     from board.locate import locate
     from board.locate.truth import Truth, compare_with_truth
     from board.skydb import SkyDB
@@ -86,9 +97,10 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
     truth_el = np.load(runp / "truth.npz")["elevation_deg"][k].astype(np.float64)
     pitch, roll = float(row["pitch_deg"] or 0.0), float(row["roll_deg"] or 0.0)
     tx, ty, th = float(row["true_x"]), float(row["true_y"]), float(row["true_heading_deg"])
-    out = {"run": run, "case_id": row["case_id"], "preset": row["preset"], "pose": int(row["pose"]),
-           "pitch_deg": pitch, "roll_deg": roll}
-    pano = load_panorama(fold / "panorama")
+    levelled = row.get("kind") == "acquisition"
+    out = {"run": run, "case_id": row["case_id"], "preset": row["preset"] + ("-navcam" if levelled else ""),
+           "pose": int(row["pose"]), "pitch_deg": pitch, "roll_deg": roll}
+    pano = build_panorama(load_acquisition(fold / "acquisition")) if levelled else load_panorama(fold / "panorama")
     if transfer:
         pano.transfer = transfer
     if grey:
@@ -103,7 +115,8 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
         out.update(status="no_fix", reason=res.reason, returned=False)
         return out
     out["returned"] = True
-    truth = scoring.true_skyline(truth_el, heading_deg=th, pitch_deg=pitch, roll_deg=roll, n_azimuth=n)
+    truth = scoring.true_skyline(truth_el, heading_deg=th, pitch_deg=0.0 if levelled else pitch,
+                                 roll_deg=0.0 if levelled else roll, n_azimuth=n)
     view = scoring.view_limits(res.panorama, n)
     ex = scoring.extraction_errors(res.skyline.elevation_deg, truth, res.skyline.azimuth_step_deg, view)
     out.update(ex)
@@ -201,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         todo += [(str(run.resolve()), str(f), r) for f, r in _cases(run, looks)]
     if not todo:
-        print("campaign_reextract: no finished panorama case matches", file=sys.stderr)
+        print("campaign_reextract: no finished panorama or acquisition case matches", file=sys.stderr)
         return 1
     rows: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(a.jobs, 1)) as pool:

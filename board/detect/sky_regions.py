@@ -110,6 +110,9 @@ class DetectorParams:
                                         # a grey scene's colour difference is the channels' noise
     coarse_contrast_cap: bool = False   # True: the reduced copy's step-contrast check also caps the full-resolution
                                         # confidence (before session 15; now only its wide-window checks do)
+    reseat_on_step_above: bool = True   # columns masked for a sky-to-ground step above the line: the path solved
+                                        # again kept at or above that step (a far ridge behind a near slope's
+                                        # edge); a column takes the new line only where it passes every check
 
 
 @dataclass
@@ -400,6 +403,24 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             if line.size < W:
                 line = np.concatenate([line, np.full(W - line.size, line[-1])])
         if it + 1 < max(1, P.iterations):
+            if P.reseat_on_step_above:
+                # a far ridge the line passed under (it looks like sky to these classes, not in its step)
+                # goes to the ground class of the re-fit
+                cproj = _colour_projection(feats, stats, chroma, P)
+
+                def score(b: np.ndarray, on_step: np.ndarray | None = None, checks: dict | None = None
+                          ) -> np.ndarray:
+                    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, cproj, on_step, checks)[0]
+                    if chroma is not None:
+                        np.minimum(conf, _sky_colour_unlike_ground(chroma, seen, b, P)[0], out=conf)
+                    return conf
+
+                checks = {}
+                conf_it = score(line, checks=checks)
+                reseated, take = _reseat_on_step_above(node, line, conf_it, checks, proj, cproj, seen, score, P, wrap)
+                diag["refit_reseated_columns"] = int(take.sum())
+                line = np.where(take, reseated, line)
+                del cproj, conf_it, checks, reseated, take
             sky_cls, ground_cls = _bands_from_line(line.astype(np.float64), H, P.refit_margin_px, P.sky_band_px)
             sky_cls &= seen
             ground_cls &= seen
@@ -418,20 +439,48 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     # sub-pixel position from the intensity step where intensity separates the classes (colour edges
     # shift with lens dispersion), from the discriminant elsewhere
     lin_raw, lin_rgb = _linear_light(image, P)
+    lin = _vertical_blur(lin_raw, P)
+    colour_proj = _colour_projection(feats, stats, chroma, P)
+
+    checks: dict = {}
+
+    def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
+        """Sub-pixel line, confidence and wide-window confidence of the path ``b``, and for colour images
+        :func:`_sky_colour_unlike_ground`'s factor, sky-ground colour offset and ground colour."""
+        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
+        conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks)
+        colour = None
+        if chroma is not None:
+            colour = _sky_colour_unlike_ground(chroma, seen, b, P)
+            np.minimum(conf, colour[0], out=conf)
+            np.minimum(context, colour[0], out=context)
+        return y, conf, context, colour
+
     clipped = clipped_run_above(grey, b, P.saturation_level)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
-    y = _subpixel_line(blur, _vertical_blur(lin_raw, P), diff, b, seen_pair, polarity, sep_col, contrast, P,
-                       lin_rgb=lin_rgb)
-    del lin_raw, lin_rgb
-    conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
+    del lin_raw
+    y, conf, context, colour = line_and_confidence(b)
     no_sky = 0.0
-    if chroma is not None:
-        c_colour, offset, g_ref = _sky_colour_unlike_ground(chroma, seen, b, P)
+    if colour is not None:
+        c_colour, offset, g_ref = colour
         diag["sky_ground_colour_contrast"] = offset
         no_sky = float(np.mean(c_colour[n_seen_col > 0] < 0.5)) if (n_seen_col > 0).any() else 0.0
         diag["sky_coloured_like_ground_fraction"] = no_sky
-        np.minimum(conf, c_colour, out=conf)
-        np.minimum(context, c_colour, out=context)
+    if P.reseat_on_step_above:
+        scored: dict = {}
+
+        def score(b2: np.ndarray, on_step: np.ndarray | None = None) -> np.ndarray:
+            scored["y"], scored["conf"], scored["context"], _ = line_and_confidence(b2, on_step)
+            return scored["conf"]
+
+        b2, take = _reseat_on_step_above(node, b, conf, checks, proj, colour_proj, seen, score, P, wrap)
+        diag["reseated_columns"] = int(take.sum())
+        if take.any():
+            y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
+                                   np.where(take, scored["context"], context), np.where(take, b2, b))
+            clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level), clipped)
+    del lin, lin_rgb, node
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if init_classes is None and no_sky >= P.colour_second_pass_fraction:
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
@@ -441,7 +490,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         lo, hi = P.sky_colour_ramp
         init = (share >= hi, share <= lo)
         # the first pass's images are not needed any more (the second one makes its own: 256 MB on board)
-        del share, grey, blur, tex, chroma, feats, p, proj, node, diff, sky_cls, ground_cls, sky0, ground0
+        del share, grey, blur, tex, chroma, feats, p, proj, diff, sky_cls, ground_cls, sky0, ground0
         again = _detect_direct(image, seen, wrap, P, init_classes=init)
         del init
         if again.valid.sum() > valid.sum():
@@ -786,19 +835,41 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     seen_pair = bseen[1:] & bseen[:-1]
     node, diff = _node_cost(p, proj, bseen, seen_pair, P)
     b = shortest_path_l1(node, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
-                         offsets=off).rows_top
-    del node
+                         offsets=off).rows_top.astype(np.int64)
     contrast = np.abs(mu_g - mu_s)
     sep_col = contrast / np.hypot(sd_s, sd_g)
-    # the clipped band above the line: counted in the band, and on the reduced copy where it fills the band
-    clipped = clipped_run_above(grey, b, P.saturation_level).astype(np.float64)
-    clipped = np.where(b - clipped <= 0, np.maximum(clipped, clipped_c), clipped)
+    colour_proj = _colour_projection(feats, stats, chroma, P)
+
+    def clipped_rows(b: np.ndarray) -> np.ndarray:
+        # the clipped band above the line: counted in the band, and on the reduced copy where it fills the band
+        clipped = clipped_run_above(grey, b, P.saturation_level).astype(np.float64)
+        return np.where(b - clipped <= 0, np.maximum(clipped, clipped_c), clipped)
+
+    def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None,
+                            checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
+        conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks)
+        np.minimum(conf, conf_c, out=conf)
+        return y, conf
+
+    clipped = clipped_rows(b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     del lin_raw
-    y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
-    del diff, lin, lin_rgb
-    conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, _colour_projection(feats, stats, chroma, P))
-    np.minimum(conf, conf_c, out=conf)
+    checks: dict = {}
+    y, conf = line_and_confidence(b, checks=checks)
+    if P.reseat_on_step_above:
+        scored: dict = {}
+
+        def score(b2: np.ndarray, on_step: np.ndarray) -> np.ndarray:
+            scored["y"], scored["conf"] = line_and_confidence(b2, on_step)
+            return scored["conf"]
+
+        b2, take = _reseat_on_step_above(node, b, conf, checks, proj, colour_proj, bseen, score, P, wrap, offsets=off)
+        diag["refined_reseated_columns"] = int(take.sum())
+        if take.any():
+            y, conf = np.where(take, scored["y"], y), np.where(take, scored["conf"], conf)
+            clipped = np.where(take, clipped_rows(b2), clipped)
+    del node, diff, lin, lin_rgb
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
@@ -873,22 +944,33 @@ def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tup
 def _no_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> np.ndarray:
     """1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0 where it
     has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky)."""
-    s_above, s_noise = _largest_step_above(proj, seen, b, P.above_step_window_px)
+    return _step_above(proj, seen, b, P)[0]
+
+
+def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_no_step_above`'s factor and the row just below the largest step above the line (-1: none)."""
+    s_above, s_noise, row = _largest_step_above(proj, seen, b, P.above_step_window_px)
     lo, hi = P.above_step_range
     lo = max(lo, 6.0 * s_noise)
     hi = max(hi, lo + 0.05)
-    return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1)
+    return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
-                sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None,
+                on_step: np.ndarray | None = None, checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring) and the
     same without the step-contrast and seen-rows checks: the checks whose windows look beyond the step
     (region consistency, saturation and glare, a step above the line).
 
     proj : the discriminant image (sky 0, ground 1 per column); sigma_sky : its sky spread;
-    colour_proj : the same scaling of the colour feature alone (None for grey images)."""
+    colour_proj : the same scaling of the colour feature alone (None for grey images); on_step : (W,) bool,
+    the columns of a path re-seated on a step above the first line (:func:`_step_above_limits`): there a
+    pixel below the line also counts as ground where the discriminant is past the middle of the line's own
+    step (a far ridge as bright as the sky, that the classes ``p``, fitted on the whole sector's ground, call
+    sky); checks : a dict that receives
+    the individual checks' factors (``"region"``, ``"above"``)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(proj, sf, b, -w, 0)
@@ -900,7 +982,14 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     R = P.region_window_px
     sky_like = (p > 0.5).astype(np.float32)
     fs, ns = _window_mean(sky_like, sf, b, -R, 0)
-    fg, ng = _window_mean(1.0 - sky_like, sf, b, 0, R)
+    ground_like = 1.0 - sky_like
+    if on_step is not None and on_step.any():
+        # below a re-seated line, ground is what stays past the middle of the line's own step (a far ridge
+        # between the sky and a dark slope in grey is nearer the sky's level than the slope's)
+        mid = np.nan_to_num(above + 0.5 * local, nan=0.5).astype(np.float32)
+        ground_like = np.where(on_step[None, :], np.maximum(ground_like, (proj > mid[None, :]).astype(np.float32)),
+                               ground_like)
+    fg, ng = _window_mean(ground_like, sf, b, 0, R)
     c_region = np.minimum(np.clip((fs - 0.6) / 0.3, 0, 1), np.clip((fg - 0.45) / 0.3, 0, 1))
     # clipped on both sides of the line (glare, over-exposure, crushed blacks): the step is not measurable.
     # One clipped side is fine (a black lunar sky, a saturated sky over lit ground).
@@ -928,12 +1017,95 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
         # make the intensity-and-colour discriminant of the ground strip between them look like sky,
         # while its colour is plainly the ground's
         c_above = np.minimum(c_above, _no_step_above(colour_proj, seen, b, P))
+    if checks is not None:
+        checks.update(region=np.nan_to_num(c_region, nan=0.0), above=np.nan_to_num(c_above, nan=0.0))
     context = np.nan_to_num(np.minimum.reduce([c_region, c_sat, c_above]), nan=0.0)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
               "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
               np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5))
     return np.nan_to_num(conf, nan=0.0), context
+
+
+#: node cost added below the limit row of a re-seated path (far more than any path's cost per node)
+_FORBIDDEN = 1.0e4
+
+
+def _solve_above(node: np.ndarray, lim: np.ndarray, P: DetectorParams, wrap: bool,
+                 offsets: np.ndarray | None = None) -> np.ndarray:
+    """The smooth path (rows, int64) through ``node`` kept at or above row ``lim + P.above_step_window_px``
+    in every column (``lim`` from :func:`_step_above_limits`; ``H``: free); ``offsets``: the image row of
+    ``node``'s row 0 per column (a band), as for :func:`shortest_path_l1`."""
+    H = node.shape[0]
+    kept = np.where(np.arange(H)[:, None] > lim[None, :] + P.above_step_window_px, np.float32(_FORBIDDEN), node)
+    return shortest_path_l1(kept, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
+                            offsets=offsets).rows_top.astype(np.int64)
+
+
+def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, checks: dict, proj: np.ndarray,
+                          colour_proj: np.ndarray | None, seen: np.ndarray, score, P: DetectorParams, wrap: bool,
+                          offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The path solved again above the sky-to-ground steps that mask columns of the line ``b``, and the
+    columns that take it.
+
+    At the junction where a near slope's edge runs down in front of a far ridge (as bright as the sky in
+    grey, plain in colour), the smooth path keeps to the slope's strong edge and the columns are masked for
+    the step above them (``checks["above"]`` from :func:`_confidence`).  The skyline lies at or above every
+    real sky-to-ground step of its column, so the path is solved again kept at or above those steps
+    (:func:`_step_above_limits`, :func:`_solve_above`).  A masked column takes the new path only where it is
+    higher and passes every check there: ``score(b2, on_step)`` is the confidence of the path ``b2``, with
+    the region check of the ``on_step`` columns also taking the discriminant's ground (the classes, fitted on
+    the whole sector's ground, call a far ridge as bright as the sky sky).  A column without sky (a near
+    slope filling the top of the view) has ground steps above its line too; its new path fails the sky's
+    colour or region there and it stays masked.  ``offsets``: see :func:`_solve_above` (the band of the
+    full-resolution pass).  Returns ``(b2, take)``; ``take`` all False when fewer than ``P.min_run_columns``
+    columns are masked by a step above."""
+    H, W = node.shape
+    masked = (conf < P.min_confidence) & (checks["above"] < 0.5)
+    lim = _fill_short_gaps(_step_above_limits(proj, colour_proj, seen, b, masked, P), H, P.mask_margin_columns)
+    on_step = lim < H
+    if int(on_step.sum()) < P.min_run_columns:
+        return b, np.zeros(W, dtype=bool)
+    b2 = _solve_above(node, lim, P, wrap, offsets)
+    on_step &= b2 < b
+    take = on_step & (score(b2, on_step) >= P.min_confidence)
+    return b2, take
+
+
+def _fill_short_gaps(lim: np.ndarray, H: int, gap: int) -> np.ndarray:
+    """``lim`` (W,) with every run of at most ``gap`` free columns (value ``H``) between two limited ones
+    given the limit interpolated linearly between them (no wrap): a path limited in every other column of a
+    junction zig-zags between the slope's edge and the ridge above it."""
+    out = lim.copy()
+    idx = np.flatnonzero(lim < H)
+    if idx.size < 2:
+        return out
+    for a, c in zip(idx[:-1], idx[1:]):
+        if 1 < c - a <= gap + 1:
+            t = (np.arange(a + 1, c) - a) / (c - a)
+            out[a + 1:c] = np.rint(lim[a] + t * (lim[c] - lim[a])).astype(out.dtype)
+    return out
+
+
+def _step_above_limits(proj: np.ndarray, colour_proj: np.ndarray | None, seen: np.ndarray, b: np.ndarray,
+                       masked: np.ndarray, P: DetectorParams) -> np.ndarray:
+    """Per column, the row just below the highest sky-to-ground step above the line ``b`` that masks it
+    (:func:`_no_step_above` on the discriminant ``proj`` or on the colour alone ``colour_proj``), in the
+    ``masked`` columns (:func:`_masked_under_step`) where there is one; ``H`` elsewhere.
+
+    Such a step is a boundary the line passed under: at the junction where a near slope's edge runs down
+    in front of a far ridge (as bright as the sky in grey, plain in colour), the smooth path keeps to the
+    slope's strong edge and the columns are masked.  The skyline lies at or above every real sky-to-ground
+    step of its column, so the path may be solved again above these rows."""
+    H = proj.shape[0]
+    lim = np.full(b.size, H, dtype=np.int64)
+    for pr in (proj, colour_proj):
+        if pr is None:
+            continue
+        c, row = _step_above(pr, seen, b, P)
+        hit = masked & (c < 0.5) & (row >= 0)
+        lim = np.where(hit, np.minimum(lim, row), lim)
+    return lim
 
 
 def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
@@ -971,17 +1143,19 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     return np.clip((share - t0) / (t1 - t0), 0.0, 1.0), offset, g_ref
 
 
-def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, float]:
+def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int
+                        ) -> tuple[np.ndarray, float, np.ndarray]:
     """Per column, the largest sky-to-ground step of ``proj`` (mean of ``k`` rows below minus ``k`` rows
     above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``
-    (0 where there is no such boundary), and the noise of such a step: 1.4826 MAD of the steps in the
-    sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell).
+    (0 where there is no such boundary), the noise of such a step: 1.4826 MAD of the steps in the
+    sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell), and
+    the row just below that step's boundary (-1 where there is no boundary).
 
     float32 running sums in place: about four (H, W) float32 arrays at the peak.
     """
     H, W = proj.shape
     if H < 2 * k + 2:
-        return np.zeros(W), 0.0
+        return np.zeros(W), 0.0, np.full(W, -1, dtype=np.int64)
     cs = np.zeros((H + 1, W), dtype=np.float32)
     np.cumsum(np.where(seen, proj, np.float32(0.0)), axis=0, out=cs[1:])
     n = H - 2 * k + 1                                     # boundaries r = k .. H - k (between rows r-1 and r)
@@ -1004,7 +1178,10 @@ def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: in
     noise = (float(1.4826 * np.median(np.abs(sky_steps - np.median(sky_steps)))) if sky_steps.size >= 100
              else 0.0)
     step[~ok] = 0.0
-    return np.maximum(step.max(axis=0), 0.0).astype(np.float64), noise
+    at = np.argmax(step, axis=0)
+    best = step[at, np.arange(W)]
+    row = np.where(ok.any(axis=0), at + k, -1).astype(np.int64)
+    return np.maximum(best, 0.0).astype(np.float64), noise, row
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:

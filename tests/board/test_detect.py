@@ -507,6 +507,51 @@ def test_no_line_where_a_slope_of_the_grounds_colour_fills_the_top_of_the_view(p
     np.testing.assert_array_equal(grey_sky.valid, off.valid)
 
 
+def _slope_edge_in_front_of_a_far_ridge(far_level, seed=0):
+    """(H, W) grey float image, truth rows, in-view and junction column masks: a dark near slope whose edge
+    runs down across the view (from above its top, 0.3 deg of elevation per column) in front of a far ridge
+    3 +- 2.5 deg up.  The sky brightens towards the horizon (0.66 -> 0.74); the far ridge, at ``far_level``,
+    is nearer the sky's grey than the slope's (0.25): a monochrome NavCam's view of a sunlit far range past a
+    shaded near slope (held-out Baltoro, session 27).  The horizon is the higher of the two edges."""
+    rng = np.random.default_rng(seed)
+    H, W = GEOM.height, GEOM.width
+    r = np.arange(H)[:, None] + 0.5
+    cols = np.arange(W)
+    el_far = 3.0 + 1.5 * np.sin(cols / 13.0) + 1.0 * np.sin(cols / 41.0 + seed)
+    el_slope = np.where((cols >= 250) & (cols < 700), 40.0 - 0.3 * (cols - 250), -90.0)
+    row_far, row_slope = GEOM.row_of_el(el_far), GEOM.row_of_el(el_slope)
+    t = np.clip((30.0 - GEOM.el_of_row(np.arange(H))) / 30.0, 0, 1)[:, None]
+    tex = 0.02 * rng.standard_normal((H, W))
+    img = np.where(r >= row_slope[None, :], 0.25 + 0.5 * tex,
+                   np.where(r >= row_far[None, :], far_level + tex, 0.66 * (1 - t) + 0.74 * t))
+    in_view = el_slope < 29.0
+    junction = in_view & (el_slope < el_far) & (el_slope > -15.0)
+    return (np.clip(img + 0.004 * rng.standard_normal(img.shape), 0, 1), np.minimum(row_far, row_slope),
+            in_view, junction)
+
+
+@pytest.mark.parametrize("far_level", [0.62, 0.5])
+def test_the_far_ridge_behind_a_near_slopes_edge_is_found_again_above_the_step(params, far_level):
+    """Past the point where a near slope's edge runs down in front of a far ridge, the smooth path keeps to
+    the slope's strong edge, and those columns are masked for the sky-to-ground step above them (the far
+    ridge).  The path solved again at or above that step finds the far ridge: more of those columns are
+    kept, on the true horizon, and no column is kept wrong that was not before."""
+    img, rows, in_view, junction = _slope_edge_in_front_of_a_far_ridge(far_level)
+    det = detect_skyline(_u8(img), wrap=True, params=params)
+    off = detect_skyline(_u8(img), wrap=True, params=replace(params, reseat_on_step_above=False))
+    masked_before = junction & ~off.valid
+    assert masked_before.sum() >= 5                               # the scene does defeat the first path
+    gained = det.valid & ~off.valid & in_view
+    assert gained.sum() >= max(5.0, masked_before.sum() / 3)      # a third of those columns at least come back
+    assert np.max(np.abs(det.line_row[gained] - rows[gained])) <= 1.5
+    wrong = in_view & det.valid & (np.abs(det.line_row - rows) > 2.0)
+    wrong_before = in_view & off.valid & (np.abs(off.line_row - rows) > 2.0)
+    assert not (wrong & ~wrong_before).any()
+    # where nothing masks a column for a step above, the path and its confidence are the same
+    far_away = in_view & ~junction & (np.abs(np.arange(GEOM.width) - 500) > 300)
+    np.testing.assert_array_equal(det.valid[far_away], off.valid[far_away])
+
+
 def _slope_under_a_high_horizon(sector, seed=0):
     """(H, W, 3) float BGR image and truth rows: as :func:`_slope_filling_the_top`, but in ``sector`` the
     slope's crest is the horizon, 22-26 deg up, with the sky above it near the top of the view."""
@@ -538,6 +583,12 @@ def test_the_horizon_above_a_near_slope_is_found_again_from_the_colours(params):
     assert det.valid[sector].mean() >= 0.95 and det.valid[~sector].mean() >= 0.95
     assert np.nanmax(np.abs(det.line_row - rows)) <= 2.0
     # the control: one pass only masks a quarter of the sector (its line on the foot, which the colour check masks)
-    once = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_second_pass_fraction=np.inf))
+    once = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_second_pass_fraction=np.inf,
+                                                               reseat_on_step_above=False))
     assert once.valid[sector].mean() <= 0.85
     assert np.nanmax(np.abs(once.line_row - rows)) <= 2.0      # what one pass keeps is right too
+    # one pass that solves the path again above the crest's step (the foot's columns have it above them)
+    # finds much of the crest by itself
+    reseated = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_second_pass_fraction=np.inf))
+    assert reseated.valid[sector].mean() >= once.valid[sector].mean() + 0.15
+    assert np.nanmax(np.abs(reseated.line_row - rows)) <= 2.0
