@@ -29,7 +29,9 @@ the line look like sky and the region below like ground:
 5. Confidence per column in [0, 1]: step contrast against the noise and the class contrast,
    sky/ground consistency of the two sides, saturation (glare), enough seen pixels on both
    sides, and no sky-to-ground step above the line (a hazy distant ridge the line passed under);
-   columns below ``min_confidence`` (and short isolated runs) are masked, never guessed.
+   columns below ``min_confidence`` (and short isolated runs) are masked, never guessed.  A column
+   masked for a step above gets the path solved again at or above that step (a far ridge behind a near
+   slope's edge, :func:`_reseat_on_step_above`) and takes it where every check passes there.
 
 Positions are continuous row coordinates with the centre of the top pixel at 0: a line at
 ``y`` means rows ``< y`` are sky (the boundary between rows ``b - 1`` and ``b`` is ``b - 0.5``).
@@ -403,24 +405,6 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             if line.size < W:
                 line = np.concatenate([line, np.full(W - line.size, line[-1])])
         if it + 1 < max(1, P.iterations):
-            if P.reseat_on_step_above:
-                # a far ridge the line passed under (it looks like sky to these classes, not in its step)
-                # goes to the ground class of the re-fit
-                cproj = _colour_projection(feats, stats, chroma, P)
-
-                def score(b: np.ndarray, on_step: np.ndarray | None = None, checks: dict | None = None
-                          ) -> np.ndarray:
-                    conf = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, cproj, on_step, checks)[0]
-                    if chroma is not None:
-                        np.minimum(conf, _sky_colour_unlike_ground(chroma, seen, b, P)[0], out=conf)
-                    return conf
-
-                checks = {}
-                conf_it = score(line, checks=checks)
-                reseated, take = _reseat_on_step_above(node, line, conf_it, checks, proj, cproj, seen, score, P, wrap)
-                diag["refit_reseated_columns"] = int(take.sum())
-                line = np.where(take, reseated, line)
-                del cproj, conf_it, checks, reseated, take
             sky_cls, ground_cls = _bands_from_line(line.astype(np.float64), H, P.refit_margin_px, P.sky_band_px)
             sky_cls &= seen
             ground_cls &= seen
@@ -474,7 +458,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             scored["y"], scored["conf"], scored["context"], _ = line_and_confidence(b2, on_step)
             return scored["conf"]
 
-        b2, take = _reseat_on_step_above(node, b, conf, checks, proj, colour_proj, seen, score, P, wrap)
+        b2, take = _reseat_on_step_above(node, b, conf, checks, score, P, wrap)
         diag["reseated_columns"] = int(take.sum())
         if take.any():
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
@@ -864,7 +848,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
             scored["y"], scored["conf"] = line_and_confidence(b2, on_step)
             return scored["conf"]
 
-        b2, take = _reseat_on_step_above(node, b, conf, checks, proj, colour_proj, bseen, score, P, wrap, offsets=off)
+        b2, take = _reseat_on_step_above(node, b, conf, checks, score, P, wrap, offsets=off)
         diag["refined_reseated_columns"] = int(take.sum())
         if take.any():
             y, conf = np.where(take, scored["y"], y), np.where(take, scored["conf"], conf)
@@ -970,7 +954,8 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     pixel below the line also counts as ground where the discriminant is past the middle of the line's own
     step (a far ridge as bright as the sky, that the classes ``p``, fitted on the whole sector's ground, call
     sky); checks : a dict that receives
-    the individual checks' factors (``"region"``, ``"above"``)."""
+    the individual checks' factors (``"region"``, ``"above"``) and the step-above check's factor and step
+    row per column on the discriminant and the colour (``"above_steps"``, :func:`_step_above`)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(proj, sf, b, -w, 0)
@@ -1011,14 +996,16 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    c_above = _no_step_above(proj, seen, b, P)
+    steps = [_step_above(proj, seen, b, P)]
     if colour_proj is not None:
         # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
         # make the intensity-and-colour discriminant of the ground strip between them look like sky,
         # while its colour is plainly the ground's
-        c_above = np.minimum(c_above, _no_step_above(colour_proj, seen, b, P))
+        steps.append(_step_above(colour_proj, seen, b, P))
+    c_above = np.minimum.reduce([c for c, _ in steps])
     if checks is not None:
-        checks.update(region=np.nan_to_num(c_region, nan=0.0), above=np.nan_to_num(c_above, nan=0.0))
+        checks.update(region=np.nan_to_num(c_region, nan=0.0), above=np.nan_to_num(c_above, nan=0.0),
+                      above_steps=steps)
     context = np.nan_to_num(np.minimum.reduce([c_region, c_sat, c_above]), nan=0.0)
     conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
@@ -1031,20 +1018,47 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
 _FORBIDDEN = 1.0e4
 
 
-def _solve_above(node: np.ndarray, lim: np.ndarray, P: DetectorParams, wrap: bool,
+def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool,
                  offsets: np.ndarray | None = None) -> np.ndarray:
     """The smooth path (rows, int64) through ``node`` kept at or above row ``lim + P.above_step_window_px``
     in every column (``lim`` from :func:`_step_above_limits`; ``H``: free); ``offsets``: the image row of
-    ``node``'s row 0 per column (a band), as for :func:`shortest_path_l1`."""
-    H = node.shape[0]
-    kept = np.where(np.arange(H)[:, None] > lim[None, :] + P.above_step_window_px, np.float32(_FORBIDDEN), node)
-    return shortest_path_l1(kept, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
-                            offsets=offsets).rows_top.astype(np.int64)
+    ``node``'s row 0 per column (a band), as for :func:`shortest_path_l1`.
+
+    Only the columns near the limited ones can change: the path is solved in windows of
+    ``2 * P.mask_margin_columns + 2`` columns around each run of limited columns, pinned to the first path
+    ``b`` at both ends of the window (the whole width at once when the windows cover half of it)."""
+    H, W = node.shape
+    limited = lim < H
+    if not limited.any():
+        return b.copy()
+    m = 2 * P.mask_margin_columns + 2
+    window = ~_grow_mask(~limited, m, wrap)
+    if window.mean() > 0.5 or window.all():
+        kept = np.where(np.arange(H)[:, None] > lim[None, :] + P.above_step_window_px, np.float32(_FORBIDDEN), node)
+        return shortest_path_l1(kept, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
+                                offsets=offsets).rows_top.astype(np.int64)
+    shift = int(np.flatnonzero(~window)[0]) if wrap else 0     # a window never straddles column 0 then
+    cols = (np.arange(W) + shift) % W
+    win = window[cols]
+    b2 = b.copy()
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], win.astype(np.int8), [0]])))
+    for a, c in zip(edges[::2], edges[1::2]):
+        cc = cols[max(a - 1, 0):min(c + 1, W)]                  # the window and one pinned column each side
+        sub = np.where(np.arange(H)[:, None] > lim[cc][None, :] + P.above_step_window_px,
+                       np.float32(_FORBIDDEN), node[:, cc])
+        for j in ((0,) if a > 0 else ()) + ((cc.size - 1,) if c < W else ()):
+            pin = np.full(H, np.float32(_FORBIDDEN))
+            pin[b[cc[j]]] = 0.0
+            sub[:, j] = pin
+        path = shortest_path_l1(sub, jump_cost=P.jump_cost_per_px, wrap=False,
+                                offsets=None if offsets is None else offsets[cc]).rows_top
+        b2[cc] = path
+    return b2
 
 
-def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, checks: dict, proj: np.ndarray,
-                          colour_proj: np.ndarray | None, seen: np.ndarray, score, P: DetectorParams, wrap: bool,
-                          offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, checks: dict, score,
+                          P: DetectorParams, wrap: bool, offsets: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """The path solved again above the sky-to-ground steps that mask columns of the line ``b``, and the
     columns that take it.
 
@@ -1053,20 +1067,23 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     the step above them (``checks["above"]`` from :func:`_confidence`).  The skyline lies at or above every
     real sky-to-ground step of its column, so the path is solved again kept at or above those steps
     (:func:`_step_above_limits`, :func:`_solve_above`).  A masked column takes the new path only where it is
-    higher and passes every check there: ``score(b2, on_step)`` is the confidence of the path ``b2``, with
-    the region check of the ``on_step`` columns also taking the discriminant's ground (the classes, fitted on
-    the whole sector's ground, call a far ridge as bright as the sky sky).  A column without sky (a near
+    higher and passes every check there: ``score(b2, on_step)`` is the confidence of the path ``b2``, whose
+    region check in the ``on_step`` columns also counts as ground the pixels past the middle of the line's
+    own step on the discriminant (the classes, fitted on the whole sector's ground, call a far ridge nearly
+    as bright as the sky sky).  A column without sky (a near
     slope filling the top of the view) has ground steps above its line too; its new path fails the sky's
     colour or region there and it stays masked.  ``offsets``: see :func:`_solve_above` (the band of the
     full-resolution pass).  Returns ``(b2, take)``; ``take`` all False when fewer than ``P.min_run_columns``
     columns are masked by a step above."""
     H, W = node.shape
     masked = (conf < P.min_confidence) & (checks["above"] < 0.5)
-    lim = _fill_short_gaps(_step_above_limits(proj, colour_proj, seen, b, masked, P), H, P.mask_margin_columns)
+    if not masked.any():
+        return b, np.zeros(W, dtype=bool)
+    lim = _fill_short_gaps(_step_above_limits(checks["above_steps"], masked, H), H, P.mask_margin_columns)
     on_step = lim < H
     if int(on_step.sum()) < P.min_run_columns:
         return b, np.zeros(W, dtype=bool)
-    b2 = _solve_above(node, lim, P, wrap, offsets)
+    b2 = _solve_above(node, lim, b, P, wrap, offsets)
     on_step &= b2 < b
     take = on_step & (score(b2, on_step) >= P.min_confidence)
     return b2, take
@@ -1087,22 +1104,18 @@ def _fill_short_gaps(lim: np.ndarray, H: int, gap: int) -> np.ndarray:
     return out
 
 
-def _step_above_limits(proj: np.ndarray, colour_proj: np.ndarray | None, seen: np.ndarray, b: np.ndarray,
-                       masked: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """Per column, the row just below the highest sky-to-ground step above the line ``b`` that masks it
-    (:func:`_no_step_above` on the discriminant ``proj`` or on the colour alone ``colour_proj``), in the
-    ``masked`` columns (:func:`_masked_under_step`) where there is one; ``H`` elsewhere.
+def _step_above_limits(steps: list[tuple[np.ndarray, np.ndarray]], masked: np.ndarray, H: int) -> np.ndarray:
+    """Per column, the row just below the highest sky-to-ground step above the line that masks it, in the
+    ``masked`` columns where there is one; ``H`` elsewhere.  ``steps``: the step-above check's factor and
+    step row per column, on the discriminant and on the colour alone (:func:`_step_above`, kept by
+    :func:`_confidence` as ``checks["above_steps"]``).
 
     Such a step is a boundary the line passed under: at the junction where a near slope's edge runs down
     in front of a far ridge (as bright as the sky in grey, plain in colour), the smooth path keeps to the
     slope's strong edge and the columns are masked.  The skyline lies at or above every real sky-to-ground
     step of its column, so the path may be solved again above these rows."""
-    H = proj.shape[0]
-    lim = np.full(b.size, H, dtype=np.int64)
-    for pr in (proj, colour_proj):
-        if pr is None:
-            continue
-        c, row = _step_above(pr, seen, b, P)
+    lim = np.full(masked.size, H, dtype=np.int64)
+    for c, row in steps:
         hit = masked & (c < 0.5) & (row >= 0)
         lim = np.where(hit, np.minimum(lim, row), lim)
     return lim
