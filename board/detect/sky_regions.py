@@ -458,7 +458,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             scored["y"], scored["conf"], scored["context"], _ = line_and_confidence(b2, on_step)
             return scored["conf"]
 
-        b2, take = _reseat_on_step_above(node, b, conf, checks, score, P, wrap)
+        b2, take = _reseat_on_step_above(node, b, conf, checks, score, np.argmax(seen, axis=0), P, wrap)
         diag["reseated_columns"] = int(take.sum())
         if take.any():
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
@@ -848,7 +848,8 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
             scored["y"], scored["conf"] = line_and_confidence(b2, on_step)
             return scored["conf"]
 
-        b2, take = _reseat_on_step_above(node, b, conf, checks, score, P, wrap, offsets=off)
+        top = np.zeros(W, dtype=np.int64) if seen is None else np.argmax(seen, axis=0)   # the view's first seen row
+        b2, take = _reseat_on_step_above(node, b, conf, checks, score, top - off, P, wrap, offsets=off)
         diag["refined_reseated_columns"] = int(take.sum())
         if take.any():
             y, conf = np.where(take, scored["y"], y), np.where(take, scored["conf"], conf)
@@ -1016,11 +1017,14 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
 
 #: node cost added below the limit row of a re-seated path (far more than any path's cost per node)
 _FORBIDDEN = 1.0e4
+#: rows below a step's row that a re-seated path may still take (the step's row is the largest of 3-row
+#: window differences on a blurred image: within a row of the edge)
+_LIMIT_SLACK_ROWS = 1
 
 
 def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool,
                  offsets: np.ndarray | None = None) -> np.ndarray:
-    """The smooth path (rows, int64) through ``node`` kept at or above row ``lim + P.above_step_window_px``
+    """The smooth path (rows, int64) through ``node`` kept at or above row ``lim + _LIMIT_SLACK_ROWS``
     in every column (``lim`` from :func:`_step_above_limits`; ``H``: free); ``offsets``: the image row of
     ``node``'s row 0 per column (a band), as for :func:`shortest_path_l1`.
 
@@ -1034,7 +1038,7 @@ def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorPa
     m = 2 * P.mask_margin_columns + 2
     window = ~_grow_mask(~limited, m, wrap)
     if window.mean() > 0.5 or window.all():
-        kept = np.where(np.arange(H)[:, None] > lim[None, :] + P.above_step_window_px, np.float32(_FORBIDDEN), node)
+        kept = np.where(np.arange(H)[:, None] > lim[None, :] + _LIMIT_SLACK_ROWS, np.float32(_FORBIDDEN), node)
         return shortest_path_l1(kept, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
                                 offsets=offsets).rows_top.astype(np.int64)
     shift = int(np.flatnonzero(~window)[0]) if wrap else 0     # a window never straddles column 0 then
@@ -1044,7 +1048,7 @@ def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorPa
     edges = np.flatnonzero(np.diff(np.concatenate([[0], win.astype(np.int8), [0]])))
     for a, c in zip(edges[::2], edges[1::2]):
         cc = cols[max(a - 1, 0):min(c + 1, W)]                  # the window and one pinned column each side
-        sub = np.where(np.arange(H)[:, None] > lim[cc][None, :] + P.above_step_window_px,
+        sub = np.where(np.arange(H)[:, None] > lim[cc][None, :] + _LIMIT_SLACK_ROWS,
                        np.float32(_FORBIDDEN), node[:, cc])
         for j in ((0,) if a > 0 else ()) + ((cc.size - 1,) if c < W else ()):
             pin = np.full(H, np.float32(_FORBIDDEN))
@@ -1057,7 +1061,7 @@ def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorPa
 
 
 def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, checks: dict, score,
-                          P: DetectorParams, wrap: bool, offsets: np.ndarray | None = None
+                          first_seen: np.ndarray, P: DetectorParams, wrap: bool, offsets: np.ndarray | None = None
                           ) -> tuple[np.ndarray, np.ndarray]:
     """The path solved again above the sky-to-ground steps that mask columns of the line ``b``, and the
     columns that take it.
@@ -1072,9 +1076,13 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     own step on the discriminant (the classes, fitted on the whole sector's ground, call a far ridge nearly
     as bright as the sky sky).  A column without sky (a near
     slope filling the top of the view) has ground steps above its line too; its new path fails the sky's
-    colour or region there and it stays masked.  ``offsets``: see :func:`_solve_above` (the band of the
-    full-resolution pass).  Returns ``(b2, take)``; ``take`` all False when fewer than ``P.min_run_columns``
-    columns are masked by a step above."""
+    colour or region there and it stays masked.  Two guards keep the new line off what is not a far ridge:
+    it must have half a region window of seen rows above it (``first_seen``: the first seen row per column;
+    the top rows of a vignetted or distorted view step too), and the columns that take it must form runs of
+    ``P.min_run_columns`` at least on their own, across gaps of up to 2 columns (a junction's ridge spans
+    many columns; single columns took a step in a noisy sky, in a tuning-split Mars label).  ``offsets``: see :func:`_solve_above`
+    (the band of the full-resolution pass).  Returns ``(b2, take)``; ``take`` all False when fewer than
+    ``P.min_run_columns`` columns are masked by a step above."""
     H, W = node.shape
     masked = (conf < P.min_confidence) & (checks["above"] < 0.5)
     if not masked.any():
@@ -1084,9 +1092,14 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     if int(on_step.sum()) < P.min_run_columns:
         return b, np.zeros(W, dtype=bool)
     b2 = _solve_above(node, lim, b, P, wrap, offsets)
-    on_step &= b2 < b
+    on_step &= (b2 < b) & (b2 - first_seen >= P.region_window_px // 2)
+    if not on_step.any():
+        return b2, on_step
     take = on_step & (score(b2, on_step) >= P.min_confidence)
-    return b2, take
+    # runs of taking columns, across gaps of up to 2 columns (near the crossing point every other column
+    # can fail a check), at least P.min_run_columns long
+    closed = ~_drop_short_runs(~take, 3, wrap)
+    return b2, take & _drop_short_runs(closed, P.min_run_columns, wrap)
 
 
 def _fill_short_gaps(lim: np.ndarray, H: int, gap: int) -> np.ndarray:
