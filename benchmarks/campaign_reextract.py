@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 #: the product folder and manifest of each case kind that has pictures
 PRODUCTS = {"panorama": ("panorama", "panorama.json"), "acquisition": ("acquisition", "acquisition.json")}
 
@@ -83,9 +82,9 @@ def evaluate_case(run: str, folder: str, row: dict, detector: dict | None = None
 
     from board.acquisition import load_acquisition, load_panorama
     from board.extraction import ExtractionOptions, extract_from_panorama
-    from board.panorama import build_panorama
     from board.locate import locate
     from board.locate.truth import Truth, compare_with_truth
+    from board.panorama import build_panorama
     from board.skydb import SkyDB
     from render_service.campaign import scoring
 

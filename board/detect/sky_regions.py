@@ -464,7 +464,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
                                    np.where(take, scored["context"], context), np.where(take, b2, b))
             clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level), clipped)
-    del lin, lin_rgb, node
+    lin = lin_rgb = node = None          # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if init_classes is None and no_sky >= P.colour_second_pass_fraction:
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
@@ -854,7 +854,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         if take.any():
             y, conf = np.where(take, scored["y"], y), np.where(take, scored["conf"], conf)
             clipped = np.where(take, clipped_rows(b2), clipped)
-    del node, diff, lin, lin_rgb
+    node = diff = lin = lin_rgb = None   # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
@@ -1080,9 +1080,9 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     it must have half a region window of seen rows above it (``first_seen``: the first seen row per column;
     the top rows of a vignetted or distorted view step too), and the columns that take it must form runs of
     ``P.min_run_columns`` at least on their own, across gaps of up to 2 columns (a junction's ridge spans
-    many columns; single columns took a step in a noisy sky, in a tuning-split Mars label).  ``offsets``: see :func:`_solve_above`
-    (the band of the full-resolution pass).  Returns ``(b2, take)``; ``take`` all False when fewer than
-    ``P.min_run_columns`` columns are masked by a step above."""
+    many columns; single columns took a step in a noisy sky, in a tuning-split Mars label).  ``offsets``:
+    see :func:`_solve_above` (the band of the full-resolution pass).  Returns ``(b2, take)``; ``take`` all
+    False when fewer than ``P.min_run_columns`` columns are masked by a step above."""
     H, W = node.shape
     masked = (conf < P.min_confidence) & (checks["above"] < 0.5)
     if not masked.any():
