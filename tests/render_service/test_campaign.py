@@ -389,6 +389,31 @@ def test_the_database_floor_locates_each_true_horizon_near_its_pose(campaign_run
 
 @pytest.mark.slow
 @pytest.mark.blender
+def test_reextraction_scores_the_runs_pictures_as_the_campaign_did(campaign_run):
+    """benchmarks.campaign_reextract runs a finished campaign's rendered panoramas and NavCam acquisitions through
+    the extraction and the matcher again, with its own glue (an acquisition's panorama levelled with its
+    manifest's attitude, the true skyline of a level mast): with the code that ran the campaign, every case's
+    kept share, extraction error, fix and status are the campaign's own rows."""
+    from benchmarks.campaign_reextract import _cases, evaluate_case, main
+
+    out, _ = campaign_run
+    cases = _cases(out, None)
+    assert {row["kind"] for _, row in cases} == {"panorama", "acquisition"}
+    for folder, row in cases:
+        r = evaluate_case(str(out), str(folder), row)
+        assert r["returned"] == (row["extract_status"] in ("ok", "degraded")), (row["case_id"], r.get("reason"))
+        if not r["returned"]:
+            continue
+        assert r["kept_fraction"] == pytest.approx(float(row["kept_fraction"]), abs=1e-3), row["case_id"]
+        assert r["n_gt1deg"] == int(row["n_gt1deg"]), row["case_id"]
+        assert r["extract_median_abs_err_deg"] == pytest.approx(float(row["extract_median_abs_err_deg"]), abs=1e-3)
+        assert r["error_m"] == pytest.approx(float(row["error_m"]), abs=0.01), row["case_id"]
+        assert r["status"] == row["status"], row["case_id"]
+    assert main([str(out / "no such run")]) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.blender
 def test_killed_campaign_resumes_to_the_same_results_without_recomputing(campaign_run, tmp_path):
     ref, _ = campaign_run
     out = tmp_path / "run"
