@@ -176,6 +176,26 @@ def table(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def field_values(items: list[str], flag: str, of: type) -> dict:
+    """``FIELD=VALUE`` arguments (VALUE a Python literal) for fields of the dataclass ``of``, as a dict;
+    ValueError naming ``flag``, the item and what is wrong with it."""
+    import ast
+    from dataclasses import fields
+
+    names = {f.name for f in fields(of)}
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key.strip() not in names:
+            raise ValueError(f"{flag} {item!r}: {of.__name__} has no field {key.strip()!r} "
+                             f"(its fields: {', '.join(sorted(names))})")
+        try:
+            out[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            raise ValueError(f"{flag} {item!r}: use FIELD=VALUE with a Python literal") from None
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path, help="finished campaign folders (cases/, truth.npz, db.zarr)")
@@ -194,17 +214,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="extract from monochrome versions of the panoramas (linear luminance, re-encoded)")
     a = ap.parse_args(argv)
     looks = {s for s in a.looks.split(",") if s} or None
-    import ast
+    from board.detect import DetectorParams
+    from board.extraction import ExtractionOptions
 
-    detector, options = {}, {}
-    for flag, items, into in (("--detector", a.detector, detector), ("--option", a.option, options)):
-        for item in items:
-            key, _, value = item.partition("=")
-            try:
-                into[key.strip()] = ast.literal_eval(value.strip())
-            except (ValueError, SyntaxError):
-                print(f"campaign_reextract: {flag} {item!r}: use FIELD=VALUE with a Python literal", file=sys.stderr)
-                return 1
+    try:
+        detector = field_values(a.detector, "--detector", DetectorParams)
+        options = field_values(a.option, "--option", ExtractionOptions)
+    except ValueError as e:
+        print(f"campaign_reextract: {e}", file=sys.stderr)
+        return 1
     todo = []
     for run in a.runs:
         if not (run / "db.zarr").exists() or not (run / "truth.npz").is_file():

@@ -10,7 +10,6 @@ the kept share and the kept samples more than 1 degree off in each title.
 from __future__ import annotations
 
 import argparse
-import ast
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -29,14 +28,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot_detector_variant: {a.label} is not a label folder (no truth.npz); make one with "
               "`python -m benchmarks.detector_labels`", file=sys.stderr)
         return 1
-    before = {}
-    for item in a.before:
-        key, _, value = item.partition("=")
-        try:
-            before[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            print(f"plot_detector_variant: --before {item!r}: use FIELD=VALUE with a Python literal", file=sys.stderr)
-            return 1
+    from benchmarks.campaign_reextract import field_values
+    from board.detect import DetectorParams
+
+    try:
+        before = field_values(a.before, "--before", DetectorParams)
+    except ValueError as e:
+        print(f"plot_detector_variant: {e}", file=sys.stderr)
+        return 1
 
     import matplotlib
 

@@ -387,6 +387,20 @@ def test_the_database_floor_locates_each_true_horizon_near_its_pose(campaign_run
     assert main([str(out / "no such run")]) == 2
 
 
+def test_reextraction_variants_name_a_wrong_field_or_value():
+    """The detector or extraction variant of a re-extraction (FIELD=VALUE) is parsed as Python literals for
+    fields of the dataclass; an unknown field or a value that is not a literal is refused by name."""
+    from benchmarks.campaign_reextract import field_values
+    from board.detect import DetectorParams
+
+    assert field_values(["reseat_on_step_above=False", "above_step_range=(0.1, 0.2)"], "--detector",
+                        DetectorParams) == {"reseat_on_step_above": False, "above_step_range": (0.1, 0.2)}
+    with pytest.raises(ValueError, match="has no field 'reseat'"):
+        field_values(["reseat=False"], "--detector", DetectorParams)
+    with pytest.raises(ValueError, match="Python literal"):
+        field_values(["jump_cost_per_px=fast"], "--detector", DetectorParams)
+
+
 @pytest.mark.slow
 @pytest.mark.blender
 def test_reextraction_scores_the_runs_pictures_as_the_campaign_did(campaign_run):
