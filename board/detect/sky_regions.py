@@ -460,12 +460,16 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
 
         b2, take = _reseat_on_step_above(node, b, conf, checks, score, np.argmax(seen, axis=0), P, wrap)
         diag["reseated_columns"] = int(take.sum())
+        first_conf, first_b = conf, b
         if take.any():
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
                                    np.where(take, scored["context"], context), np.where(take, b2, b))
             clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level), clipped)
     lin = lin_rgb = node = None          # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
+    if P.reseat_on_step_above and take.any():
+        valid = _keep_first_masks(valid, take, first_conf, n_seen_col, wrap, P)
+        valid = _mask_below_reseated_ends(valid, take, first_b, b, wrap, P)
     if init_classes is None and no_sky >= P.colour_second_pass_fraction:
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
         # its foot; the real horizon above it (often there, near the top of the view) is found again from
@@ -851,11 +855,16 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
         top = np.zeros(W, dtype=np.int64) if seen is None else np.argmax(seen, axis=0)   # the view's first seen row
         b2, take = _reseat_on_step_above(node, b, conf, checks, score, top - off, P, wrap, offsets=off)
         diag["refined_reseated_columns"] = int(take.sum())
+        first_conf = conf
         if take.any():
             y, conf = np.where(take, scored["y"], y), np.where(take, scored["conf"], conf)
+            b_taken = np.where(take, b2, b)
             clipped = np.where(take, clipped_rows(b2), clipped)
     node = diff = lin = lin_rgb = None   # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
+    if P.reseat_on_step_above and take.any():
+        valid = _keep_first_masks(valid, take, first_conf, n_seen_col, wrap, P)
+        valid = _mask_below_reseated_ends(valid, take, b + off, b_taken + off, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
     diag["refined_shift_px_median"] = float(np.median(np.abs(y - guide)))
@@ -1100,6 +1109,41 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     # can fail a check), at least P.min_run_columns long
     closed = ~_drop_short_runs(~take, 3, wrap)
     return b2, take & _drop_short_runs(closed, P.min_run_columns, wrap)
+
+
+def _keep_first_masks(valid: np.ndarray, take: np.ndarray, first_conf: np.ndarray, n_seen_col: np.ndarray,
+                      wrap: bool, P: DetectorParams) -> np.ndarray:
+    """``valid`` with every column that did not take a re-seated line kept only if the first line's
+    confidence ``first_conf`` kept it too.  A column next to a long masked run is masked with it
+    (:func:`_valid_columns`' margin: the smooth path needs a few columns to leave a wrong row); when the run
+    is re-seated and kept, that margin must not go with it: in a held-out Mars label the line dove 20 deg
+    into the foreground beside such a run, and three more of its columns were kept."""
+    out = valid & (take | _valid_columns(first_conf, n_seen_col, wrap, P))
+    return _drop_short_runs(out, P.min_run_columns, wrap)
+
+
+def _mask_below_reseated_ends(valid: np.ndarray, take: np.ndarray, first_row: np.ndarray, new_row: np.ndarray,
+                              wrap: bool, P: DetectorParams) -> np.ndarray:
+    """``valid`` with the ``P.mask_margin_columns`` columns beyond each end of a re-seated run masked where the
+    first line next to that end lies more than ``P.region_window_px`` rows below the re-seated one: the first
+    line there is still under the ridge the run was re-seated onto (or dives into the foreground beside it, as
+    in a held-out Mars label, where the sample fitted across that cliff was 5 deg off)."""
+    W = take.size
+    out = valid.copy()
+    idx = np.arange(W)
+    starts = take & ~np.roll(take, 1) if wrap else take & ~np.concatenate([[False], take[:-1]])
+    ends = take & ~np.roll(take, -1) if wrap else take & ~np.concatenate([take[1:], [False]])
+    for edge, step in ((starts, -1), (ends, 1)):
+        for j in idx[edge]:
+            nb = j + step
+            if not wrap and not 0 <= nb < W:
+                continue
+            nb %= W
+            if first_row[nb] - new_row[j] > P.region_window_px:
+                cols = (j + step * np.arange(1, P.mask_margin_columns + 1))
+                cols = cols % W if wrap else cols[(cols >= 0) & (cols < W)]
+                out[cols[~take[cols]]] = False
+    return _drop_short_runs(out, P.min_run_columns, wrap)
 
 
 def _fill_short_gaps(lim: np.ndarray, H: int, gap: int) -> np.ndarray:
