@@ -426,9 +426,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     lin = _vertical_blur(lin_raw, P)
     colour_proj = _colour_projection(feats, stats, chroma, P)
 
-    checks: dict = {}
-
-    def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None
+    def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None, checks: dict | None = None
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
         """Sub-pixel line, confidence and wide-window confidence of the path ``b``, and for colour images
         :func:`_sky_colour_unlike_ground`'s factor, sky-ground colour offset and ground colour."""
@@ -444,7 +442,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     clipped = clipped_run_above(grey, b, P.saturation_level)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     del lin_raw
-    y, conf, context, colour = line_and_confidence(b)
+    checks: dict = {}
+    y, conf, context, colour = line_and_confidence(b, checks=checks)
+    first_seen = np.argmax(seen, axis=0)
     no_sky = 0.0
     if colour is not None:
         c_colour, offset, g_ref = colour
@@ -458,7 +458,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             scored["y"], scored["conf"], scored["context"], _ = line_and_confidence(b2, on_step)
             return scored["conf"]
 
-        b2, take = _reseat_on_step_above(node, b, conf, checks, score, np.argmax(seen, axis=0), P, wrap)
+        b2, take = _reseat_on_step_above(node, b, conf, checks, score, first_seen, P, wrap)
         diag["reseated_columns"] = int(take.sum())
         first_conf, first_b = conf, b
         if take.any():
@@ -468,8 +468,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     lin = lin_rgb = node = None          # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
-        valid = _keep_first_masks(valid, take, first_conf, n_seen_col, wrap, P)
-        valid = _mask_below_reseated_ends(valid, take, first_b, b, wrap, P)
+        valid = _masks_after_reseat(valid, take, first_conf, first_b, b, n_seen_col, wrap, P)
     if init_classes is None and no_sky >= P.colour_second_pass_fraction:
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
         # its foot; the real horizon above it (often there, near the top of the view) is found again from
@@ -485,7 +484,6 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             again.diagnostics["colour_second_pass"] = "kept"
             return again
         diag["colour_second_pass"] = "ran, first pass kept"
-    first_seen = np.argmax(seen, axis=0)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
@@ -863,8 +861,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     node = diff = lin = lin_rgb = None   # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
-        valid = _keep_first_masks(valid, take, first_conf, n_seen_col, wrap, P)
-        valid = _mask_below_reseated_ends(valid, take, b + off, b_taken + off, wrap, P)
+        valid = _masks_after_reseat(valid, take, first_conf, b + off, b_taken + off, n_seen_col, wrap, P)
     y = y + off
     diag["valid_fraction"] = float(valid.mean())
     diag["refined_shift_px_median"] = float(np.median(np.abs(y - guide)))
@@ -935,15 +932,11 @@ def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tup
     return proj, np.sqrt(var_s)
 
 
-def _no_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> np.ndarray:
-    """1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0 where it
-    has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky)."""
-    return _step_above(proj, seen, b, P)[0]
-
-
 def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_no_step_above`'s factor and the row just below the largest step above the line (-1: none)."""
+    """Per column, 1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0
+    where it has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky), and the
+    row just below the largest such step (-1: none)."""
     s_above, s_noise, row = _largest_step_above(proj, seen, b, P.above_step_window_px)
     lo, hi = P.above_step_range
     lo = max(lo, 6.0 * s_noise)
@@ -1046,7 +1039,7 @@ def _solve_above(node: np.ndarray, lim: np.ndarray, b: np.ndarray, P: DetectorPa
         return b.copy()
     m = 2 * P.mask_margin_columns + 2
     window = ~_grow_mask(~limited, m, wrap)
-    if window.mean() > 0.5 or window.all():
+    if window.mean() > 0.5:
         kept = np.where(np.arange(H)[:, None] > lim[None, :] + _LIMIT_SLACK_ROWS, np.float32(_FORBIDDEN), node)
         return shortest_path_l1(kept, jump_cost=P.jump_cost_per_px, wrap=wrap, margin=P.wrap_margin_columns,
                                 offsets=offsets).rows_top.astype(np.int64)
@@ -1111,30 +1104,27 @@ def _reseat_on_step_above(node: np.ndarray, b: np.ndarray, conf: np.ndarray, che
     return b2, take & _drop_short_runs(closed, P.min_run_columns, wrap)
 
 
-def _keep_first_masks(valid: np.ndarray, take: np.ndarray, first_conf: np.ndarray, n_seen_col: np.ndarray,
-                      wrap: bool, P: DetectorParams) -> np.ndarray:
-    """``valid`` with every column that did not take a re-seated line kept only if the first line's
-    confidence ``first_conf`` kept it too.  A column next to a long masked run is masked with it
-    (:func:`_valid_columns`' margin: the smooth path needs a few columns to leave a wrong row); when the run
-    is re-seated and kept, that margin must not go with it: in a held-out Mars label the line dove 20 deg
-    into the foreground beside such a run, and three more of its columns were kept."""
-    out = valid & (take | _valid_columns(first_conf, n_seen_col, wrap, P))
-    return _drop_short_runs(out, P.min_run_columns, wrap)
+def _masks_after_reseat(valid: np.ndarray, take: np.ndarray, first_conf: np.ndarray, first_row: np.ndarray,
+                        new_row: np.ndarray, n_seen_col: np.ndarray, wrap: bool, P: DetectorParams) -> np.ndarray:
+    """``valid`` (from the merged confidence) after a re-seat that ``take`` columns took, with two masks kept:
 
+    * a column that did not take the new line is kept only if the first line's confidence ``first_conf`` kept
+      it too.  A column next to a long masked run is masked with it (:func:`_valid_columns`' margin: the smooth
+      path needs a few columns to leave a wrong row); when the run is re-seated and kept, that margin must not
+      go with it: in a held-out Mars label the line dove 20 deg into the foreground beside such a run, and
+      three more of its columns were kept;
+    * the ``P.mask_margin_columns`` columns beyond each end of a re-seated run are masked where the first line
+      next to that end (``first_row``) lies more than ``P.region_window_px`` rows below the re-seated one
+      (``new_row``): the first line there is still under the ridge the run was re-seated onto, or dives into
+      the foreground beside it (in that Mars label the sample fitted across that cliff was 5 deg off).
 
-def _mask_below_reseated_ends(valid: np.ndarray, take: np.ndarray, first_row: np.ndarray, new_row: np.ndarray,
-                              wrap: bool, P: DetectorParams) -> np.ndarray:
-    """``valid`` with the ``P.mask_margin_columns`` columns beyond each end of a re-seated run masked where the
-    first line next to that end lies more than ``P.region_window_px`` rows below the re-seated one: the first
-    line there is still under the ridge the run was re-seated onto (or dives into the foreground beside it, as
-    in a held-out Mars label, where the sample fitted across that cliff was 5 deg off)."""
+    Kept runs shorter than ``P.min_run_columns`` are dropped after both."""
     W = take.size
-    out = valid.copy()
-    idx = np.arange(W)
+    out = valid & (take | _valid_columns(first_conf, n_seen_col, wrap, P))
     starts = take & ~np.roll(take, 1) if wrap else take & ~np.concatenate([[False], take[:-1]])
     ends = take & ~np.roll(take, -1) if wrap else take & ~np.concatenate([take[1:], [False]])
     for edge, step in ((starts, -1), (ends, 1)):
-        for j in idx[edge]:
+        for j in np.flatnonzero(edge):
             nb = j + step
             if not wrap and not 0 <= nb < W:
                 continue
