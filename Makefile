@@ -5,12 +5,17 @@ export BLENDER_USER_RESOURCES ?= $(CURDIR)/.cache/blender
 export XDG_CACHE_HOME ?= $(CURDIR)/.cache/xdg
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 
-.PHONY: install lint test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
+.PHONY: install lock lint test test-fast demo bench bench-db bench-match bench-extract bench-blender bench-service clean \
 	detector-labels bench-detector bench-terrain campaign campaign-ci \
 	image image-smoke multinode-smoke
 
 install:
 	bash scripts/install.sh
+
+# pin the installed versions into constraints.txt (after an upgrade that passed `make test`)
+lock: install
+	{ sed -n '/^#/p' constraints.txt; $(VENV)/bin/pip freeze --exclude-editable | grep -v '^GDAL=='; } > constraints.txt.new
+	mv constraints.txt.new constraints.txt
 
 # ruff with the project's rules (pyproject.toml [tool.ruff]); `make test` runs it first
 lint: install

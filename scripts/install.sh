@@ -28,9 +28,12 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 STAMP=.venv/.skyloc-installed
-if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ] || [ scripts/install.sh -nt "$STAMP" ]; then
+if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ] || [ constraints.txt -nt "$STAMP" ] \
+   || [ scripts/install.sh -nt "$STAMP" ]; then
   .venv/bin/pip install -q --upgrade pip wheel "setuptools>=67"
-  .venv/bin/pip install -q -e ".[ground,blender,test]"
+  # constraints.txt: the dependency versions the suite last passed with, so that a release made after
+  # that day cannot turn a clean clone's CI red (`make lock` refreshes it)
+  .venv/bin/pip install -q -c constraints.txt -e ".[ground,blender,test]"
   GDAL_VERSION=$(gdal-config --version)
   .venv/bin/python -c "from osgeo import gdal_array" 2>/dev/null || \
     .venv/bin/pip install -q --no-build-isolation "GDAL==${GDAL_VERSION}"
