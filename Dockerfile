@@ -44,14 +44,15 @@ RUN --mount=type=secret,id=ca-bundle \
  && skyloc-with-ca /opt/skyloc/bin/pip install --upgrade pip wheel "setuptools>=67"
 WORKDIR /src
 # Dependencies first, from pyproject.toml alone (this layer is reused while only the source changes),
-# with the GDAL bindings of the system library (3.6.2 on bookworm) built against it.
-COPY pyproject.toml ./
+# at the versions of constraints.txt (those the test suite last passed with), with the GDAL bindings of
+# the system library (3.6.2 on bookworm) built against it.
+COPY pyproject.toml constraints.txt ./
 RUN --mount=type=secret,id=ca-bundle \
     /opt/skyloc/bin/python -c 'import sys, tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; \
 extras = [e for e in sys.argv[1].split(",") if e]; \
 print("\n".join(p["dependencies"] + [d for e in extras for d in p["optional-dependencies"][e]]))' \
       "$SKYLOC_EXTRAS" >/tmp/requirements.txt \
- && skyloc-with-ca /opt/skyloc/bin/pip install -r /tmp/requirements.txt \
+ && skyloc-with-ca /opt/skyloc/bin/pip install -c constraints.txt -r /tmp/requirements.txt \
  && skyloc-with-ca /opt/skyloc/bin/pip install --no-build-isolation "GDAL==$(gdal-config --version)" \
  && rm /tmp/requirements.txt
 COPY README.md ./
