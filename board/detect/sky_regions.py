@@ -100,6 +100,9 @@ class DetectorParams:
                                             # ground's colour to the view's sky colour: confidence 0 -> 1
     colour_second_pass_fraction: float = 0.03   # this share of the columns with a ground-coloured "sky": detect
                                                 # again from classes that start from the pixels' colour
+    colour_second_pass_masked: float = 0.05     # ... also when the first pass masks this share of the seen columns
+                                                # (a bright haze low in the sky taken for ground with a sunlit floor
+                                                # below it: the path crosses the sky's gradient and is masked there)
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
     monotone_classes: bool = True       # intensity or colour beyond a class's centre (away from the other class) counts
@@ -469,10 +472,15 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
         valid = _masks_after_reseat(valid, take, first_conf, first_b, b, n_seen_col, wrap, P)
-    if init_classes is None and no_sky >= P.colour_second_pass_fraction:
+    seen_cols = n_seen_col > 0
+    masked_share = float(np.mean(~valid[seen_cols])) if seen_cols.any() else 0.0
+    if init_classes is None and colour is not None and (no_sky >= P.colour_second_pass_fraction
+                                                        or masked_share >= P.colour_second_pass_masked):
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
         # its foot; the real horizon above it (often there, near the top of the view) is found again from
-        # classes that start from the pixels' colour: the sky's colour as sky, the ground's as ground
+        # classes that start from the pixels' colour: the sky's colour as sky, the ground's as ground.  The
+        # same where the first pass masked many columns: a haze brightening low in the sky, fitted into the
+        # bright class with a sunlit floor below it, sends the path across the sky's gradient (masked there)
         share = (chroma - np.float32(g_ref)) / np.float32(offset)
         lo, hi = P.sky_colour_ramp
         init = (share >= hi, share <= lo)

@@ -584,6 +584,7 @@ def test_the_horizon_above_a_near_slope_is_found_again_from_the_colours(params):
     assert np.nanmax(np.abs(det.line_row - rows)) <= 2.0
     # the control: one pass only masks a quarter of the sector (its line on the foot, which the colour check masks)
     once = detect_skyline(_u8(img), wrap=True, params=replace(params, colour_second_pass_fraction=np.inf,
+                                                               colour_second_pass_masked=np.inf,
                                                                reseat_on_step_above=False))
     assert once.valid[sector].mean() <= 0.85
     assert np.nanmax(np.abs(once.line_row - rows)) <= 2.0      # what one pass keeps is right too
