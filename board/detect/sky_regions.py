@@ -448,11 +448,12 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     checks: dict = {}
     y, conf, context, colour = line_and_confidence(b, checks=checks)
     first_seen = np.argmax(seen, axis=0)
+    seen_cols = n_seen_col > 0
     no_sky = 0.0
     if colour is not None:
         c_colour, offset, g_ref = colour
         diag["sky_ground_colour_contrast"] = offset
-        no_sky = float(np.mean(c_colour[n_seen_col > 0] < 0.5)) if (n_seen_col > 0).any() else 0.0
+        no_sky = float(np.mean(c_colour[seen_cols] < 0.5)) if seen_cols.any() else 0.0
         diag["sky_coloured_like_ground_fraction"] = no_sky
     if P.reseat_on_step_above:
         scored: dict = {}
@@ -472,7 +473,6 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
         valid = _masks_after_reseat(valid, take, first_conf, first_b, b, n_seen_col, wrap, P)
-    seen_cols = n_seen_col > 0
     masked_share = float(np.mean(~valid[seen_cols])) if seen_cols.any() else 0.0
     if init_classes is None and colour is not None and (no_sky >= P.colour_second_pass_fraction
                                                         or masked_share >= P.colour_second_pass_masked):

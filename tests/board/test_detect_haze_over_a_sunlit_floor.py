@@ -31,8 +31,6 @@ DATA = Path(__file__).parent / "data"
 GEOM = PanoramaGeometry(width=900, height=337, azimuth_col0_deg=-179.8, azimuth_step_deg=0.4,
                         elevation_row0_deg=89.8, elevation_step_deg=0.4, azimuth_reference="heading",
                         kind="intensity")
-#: one pixel is 0.4 deg: a kept column more than 1 deg off is 2.5 pixels off
-ONE_DEG_PX = 1.0 / GEOM.elevation_step_deg
 
 
 @pytest.fixture(scope="module")
@@ -64,5 +62,5 @@ def test_the_horizon_under_a_bright_haze_over_a_sunlit_floor_is_kept(scene, coar
     assert det.diagnostics.get("colour_second_pass") == "kept"
     assert det.valid.mean() >= (0.95 if not coarse_to_fine else once.valid.mean() + 0.1)
     err = np.abs(det.line_row - rows)[det.valid]
-    assert np.max(err) <= 1.0 < ONE_DEG_PX
+    assert np.max(err) <= 1.0                  # 0.4 deg: every kept column well inside the 1 deg
     assert np.median(err) <= 0.15
