@@ -103,6 +103,10 @@ class DetectorParams:
     colour_second_pass_masked: float = 0.05     # ... also when the first pass masks this share of the seen columns
                                                 # (a bright haze low in the sky taken for ground with a sunlit floor
                                                 # below it: the path crosses the sky's gradient and is masked there)
+    colour_second_pass_unrefitted: bool = True  # the second pass also tried on its colour classes as they are (no
+                                                # re-fit on its line: fitted over every row above the line, the
+                                                # clear upper sky makes a whitish haze low in the sky ground again),
+                                                # when the better detection still masks colour_second_pass_masked
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
     monotone_classes: bool = True       # intensity or colour beyond a class's centre (away from the other class) counts
@@ -487,9 +491,23 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         # the first pass's images are not needed any more (the second one makes its own: 256 MB on board)
         del share, grey, blur, tex, chroma, feats, p, proj, diff, sky_cls, ground_cls, sky0, ground0
         again = _detect_direct(image, seen, wrap, P, init_classes=init)
+        # ... and on those classes without their re-fit: fitted on every row above the second pass's line, the
+        # clear upper sky (a narrow spread) makes the 20-40 rows of whitish haze above a far floor's horizon a
+        # ground value in grey and colour alike, and the path climbs back into the gradient.  Tried only while
+        # the better detection so far still masks P.colour_second_pass_masked of the seen columns; of the
+        # detections, the one that keeps the most columns (every one under the same checks) is kept
+        best, label, best_valid = valid.sum(), None, valid
+        if again.valid.sum() > best:
+            best, label, best_valid = again.valid.sum(), "kept", again.valid
+        still_masked = float(np.mean(~best_valid[seen_cols])) if seen_cols.any() else 0.0
+        if (P.colour_second_pass_unrefitted and P.iterations > 1
+                and still_masked >= P.colour_second_pass_masked):
+            plain = _detect_direct(image, seen, wrap, replace(P, iterations=1), init_classes=init)
+            if plain.valid.sum() > best:
+                again, label = plain, "kept, classes of the colour"
         del init
-        if again.valid.sum() > valid.sum():
-            again.diagnostics["colour_second_pass"] = "kept"
+        if label is not None:
+            again.diagnostics["colour_second_pass"] = label
             return again
         diag["colour_second_pass"] = "ran, first pass kept"
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
