@@ -32,82 +32,13 @@ samples: the floor is the database's own, not a sampling mismatch.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-#: fine samples per database step in the floor's queries (an extracted 3600 px panorama's: 0.1 deg)
-FINE_PER_STEP = 10
-
-
-#: sub-samples averaged per query sample when the database's samples are box averages (the truth is every
-#: 0.1 deg: ten sub-samples cover a 1-degree step at its own resolution)
-BOX_SUBSAMPLES = 10
-
-
-def observe_box(az_deg: np.ndarray, el_deg: np.ndarray, *, heading_deg: float, n: int, start_deg: float,
-                window_deg: float, k: int = BOX_SUBSAMPLES) -> np.ndarray:
-    """:func:`board.match.synthetic.observe` averaged over ``window_deg`` centred on each of the ``n`` relative
-    azimuths (``k`` sub-samples evenly across it; ``window_deg`` 0: point samples), as a box-sampled database
-    or an extracted skyline holds the horizon (degrees)."""
-    from board.match.synthetic import observe
-
-    if window_deg <= 0:
-        return observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg)
-    from board.skydb import box_offsets_deg
-
-    offs = box_offsets_deg(k, window_deg)
-    return np.mean([observe(az_deg, el_deg, heading_deg=heading_deg, n=n, start_deg=start_deg + o) for o in offs],
-                   axis=0)
-
-
-def truth_queries(run: Path, n_azimuth: int, start_deg: float, *, north: bool = False, fine: bool = True,
-                  window_deg: float = 0.0) -> tuple[list[dict], np.ndarray, np.ndarray | None]:
-    """The run's accepted poses, their true horizons (degrees) as a level mast sees them at the pose's
-    heading (``north``: at heading 0) on ``n_azimuth`` relative azimuths from ``start_deg`` (the resampling
-    the campaign's scoring applies to the truth, :func:`board.match.synthetic.observe`), and with ``fine``
-    the same every ``1 / FINE_PER_STEP`` step (else None).  ``window_deg`` > 0: each sample the horizon
-    averaged over that window centred on its azimuth (a box-sampled database's step: what the extraction's
-    samples measure), else point samples."""
-    poses = json.loads((run / "poses.json").read_text())["accepted"]
-    truth = np.load(run / "truth.npz")["elevation_deg"].astype(np.float64)
-    az = np.arange(truth.shape[1]) * 360.0 / truth.shape[1]
-    heads = [0.0 if north else float(p["heading_deg"]) for p in poses]
-    q = np.stack([observe_box(az, t, heading_deg=h, n=n_azimuth, start_deg=start_deg, window_deg=window_deg)
-                  for h, t in zip(heads, truth)])
-    qf = (np.stack([observe_box(az, t, heading_deg=h, n=n_azimuth * FINE_PER_STEP, start_deg=start_deg,
-                                window_deg=window_deg) for h, t in zip(heads, truth)]) if fine else None)
-    return poses, q, qf
-
-
-def floor_rows(run: Path, *, north: bool = False, fine: bool = True, ground: bool = True) -> list[dict]:
-    """One dict per pose: index, status, error_m, sigma_x_m, sigma_y_m, sigma_heading_deg, heading_error_deg,
-    aligned_shift_deg (``north``, ``fine``: see :func:`truth_queries`; ``ground`` False: the store's ground
-    heights ignored, the eye heights between nodes estimated from the skylines)."""
-    from board.conventions import wrap_deg180
-    from board.locate import locate
-    from board.skydb import SkyDB
-    from board.skyline import Skyline
-
-    db = SkyDB.open(run / "db.zarr")
-    window = db.meta.azimuth_step_deg if db.meta.azimuth_subsamples > 1 else 0.0   # query as the database samples
-    poses, queries, fines = truth_queries(run, db.meta.n_azimuth, db.meta.azimuth_start_deg, north=north, fine=fine,
-                                          window_deg=window)
-    rows = []
-    step = db.meta.azimuth_step_deg
-    for i, (p, el) in enumerate(zip(poses, queries)):
-        fe = None if fines is None else fines[i]
-        sky = Skyline(el, db.meta.azimuth_start_deg, step, {}, fe, None if fe is None else step / FINE_PER_STEP)
-        fix = locate(db, sky, mode="lost", stored_heights=ground)
-        rows.append({"index": int(p["index"]), "status": fix.status,
-                     "error_m": math.hypot(fix.x - p["x"], fix.y - p["y"]),
-                     "sigma_x_m": fix.sigma_x_m, "sigma_y_m": fix.sigma_y_m, "sigma_heading_deg": fix.sigma_heading_deg,
-                     "heading_error_deg": abs(float(wrap_deg180(fix.heading_deg - (0.0 if north else p["heading_deg"])))),
-                     "aligned_shift_deg": fix.aligned_shift_deg})
-    return rows
+# the floor's code is the campaign's own (it writes the floor beside every case): this is its command line
+from render_service.campaign.floor import floor_rows
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,7 +6,10 @@
    tile (a tile is never rendered twice), and the exact horizon at candidate poses; candidates
    whose horizon has less than ``min_relief_deg`` of relief are rejected and listed;
 3. on Dask: every case (render, extract, locate), each writing its row when it finishes;
-4. the rows gathered into results.csv, aggregated into summary.json, drawn into report.html.
+4. the database floor: each pose's true horizon located against the database (:mod:`.floor`), written
+   beside every case located against it, so that a miss says whether the site and the database or the
+   image chain caused it;
+5. the rows gathered into results.csv, aggregated into summary.json, drawn into report.html.
 
 Killed at any point and run again with the same arguments, a campaign recomputes nothing that
 finished: the database resumes, rows on disk are kept, the poses are the same (drawn from the
@@ -36,6 +39,7 @@ from board.errors import InvalidInputError, SkylocError
 from board.skydb import LEGACY_ELEVATION_SCALE_DEG
 from render_service.campaign import planning, scoring
 from render_service.campaign import summary as summ
+from render_service.campaign.floor import floor_summary
 from render_service.campaign.profiles import Profile, get_profile
 from render_service.campaign.tasks import TRUTH_N_AZIMUTH, CampaignContext
 
@@ -273,9 +277,12 @@ def run_campaign(opt: CampaignOptions) -> dict:
             log.debug("worker usage unavailable: %s", exc)
 
     rows = _gather_rows(ctx, cases) + extra_rows
+    floor = _database_floor(out, say)
+    scoring.add_floor(rows, floor)
     _write_results(out / "results.csv", rows)
     summary = summ.summarise(rows)
     summary.update({
+        "floor": floor_summary(floor),
         "campaign": {"profile": profile.name, "seed": int(opt.seed), "dem": spec, "dem_sha256": info.sha256,
                      "body": info.body.name, "site": site.to_dict(), "poses": len(poses),
                      "rejected_poses": json.loads((out / "poses.json").read_text()).get("rejected", []),
@@ -386,6 +393,27 @@ def _render_db(client, opt, db_path: Path, tdir: Path, dem_path: Path, spec: str
     say(f"  database {db_path.name}: {job.grid.nx} x {job.grid.ny} positions, {len(pending)} tiles rendered now, "
         f"{time.perf_counter() - t0:.1f} s")
     return db_path
+
+
+def _database_floor(out: Path, say) -> list[dict]:
+    """Each accepted pose's true horizon located against the campaign's database (:mod:`.floor`), in the
+    order of ``poses.json``; [] (said) when it cannot be: the rows then keep empty floor cells."""
+    from render_service.campaign.floor import floor_rows  # noqa: PLC0415
+
+    t0 = time.perf_counter()
+    try:
+        rows = floor_rows(out)
+    except Exception as exc:  # accounting beside the cases: never worth losing the campaign's outputs
+        log.warning("database floor failed", exc_info=True)
+        say(f"  database floor not measured ({type(exc).__name__}: {exc})")
+        return []
+    fs = floor_summary(rows)
+    if fs["n"]:
+        say(f"  database floor: {fs['n']} true horizons located against the database in "
+            f"{time.perf_counter() - t0:.0f} s: median {fs['error_m_median']:.2f} m, max {fs['error_m_max']:.2f} m, "
+            f"{fs['ok']} ok" + (f"; poses limited by the site or the database: {fs['limited_poses']}"
+                               if fs["limited_poses"] else ""))
+    return rows
 
 
 def _poses(client, opt, profile: Profile, out: Path, site, ctx, say):
@@ -553,6 +581,11 @@ def screen_summary(summary: dict) -> list[str]:
             f"{_fmt(g['error_m']['p90']):>8}{_fmt(g['error_m']['max'], '.1f'):>9}"
             f"{_fmt(g['heading_error_deg']['median']):>8}{st.get('ok', 0):>4}{st.get('ambiguous', 0):>4}"
             f"{st.get('failed', 0):>5}{g['wrong']:>6}{g['wrong_ok']:>6}  {ref}")
+    fl = summary.get("floor") or {}
+    if fl.get("n"):
+        lines.append(f"database floor (true horizons located): median {fl['error_m_median']:.2f} m, max "
+                     f"{fl['error_m_max']:.2f} m, {fl['ok']} of {fl['n']} ok"
+                     + (f"; limited poses {fl['limited_poses']}" if fl["limited_poses"] else ""))
     c, r = summary["campaign"], summary["run"]
     lines.append(f"{c['rows']} of {c['cases']} cases, {c['poses']} poses ({len(c['rejected_poses'])} rejected), "
                  f"wall {r['wall_s']:.0f} s, CPU {r['cpu_s_main'] + r['cpu_s_workers']:.0f} s; "

@@ -38,8 +38,12 @@ COLUMNS = (
     "pose", "kind", "fix_pitch_deg", "fix_roll_deg", "prior_offset_m", "heading_prior_deg", "render_s", "case_s",
     "true_relief_deg", "off_grid_steps", "kept_deg", "kept_fraction", "extract_median_abs_err_deg",
     "extract_p90_abs_err_deg", "extract_frac_gt1deg", "ellipse95_major_m", "wrong", "wrong_ok", "right_flagged",
-    "picture_error", "look", "kept_hidden_deg",
+    "picture_error", "look", "kept_hidden_deg", "floor_error_m", "floor_status",
 )
+
+#: the cases located against the campaign's own database (the large-area lost cases have their own; the
+#: robustness sets their own sites): they carry their pose's database floor
+FLOOR_KINDS = ("panorama", "acquisition", "window", "heading")
 
 #: the true horizon is "in the picture" at an azimuth when it lies this many panorama rows inside the seen
 #: rows at least (the detector needs a few rows of sky and of ground); closer to the edge it is neither
@@ -157,6 +161,19 @@ def _r(v, nd: int = 4):
     except (TypeError, ValueError):
         return v
     return "" if not math.isfinite(f) else round(f, nd)
+
+
+def add_floor(rows: list[dict], floor: list[dict]) -> None:
+    """Give every row of :data:`FLOOR_KINDS` (not of the robustness table) its pose's database floor, in place:
+    ``floor_error_m`` (m) and ``floor_status`` of its true horizon located lost in space against the campaign's
+    database (:func:`render_service.campaign.floor.floor_rows`, one row per accepted pose in order).  A case's
+    error beyond its floor is the image chain's; a floor beyond the target is the site's or the database's."""
+    for r in rows:
+        k = r.get("pose")
+        if not floor or r.get("table") == "R" or r.get("kind") not in FLOOR_KINDS or k in ("", None):
+            continue
+        f = floor[int(k)]
+        r["floor_error_m"], r["floor_status"] = _r(f["error_m"]), f["status"]
 
 
 def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:

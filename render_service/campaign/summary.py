@@ -3,7 +3,8 @@
 Each group (a table and a look; table 5 also by tilt axis, table 8 by prior offset) gets: counts,
 the share of skylines returned, kept arc and extraction errors against the true horizon, the
 position and heading error (median, p90, max), counts by status, and the honesty of the status:
-the share of wrong fixes flagged (not ``ok``) and of right fixes flagged.  Metres and degrees.
+the share of wrong fixes flagged (not ``ok``) and of right fixes flagged; and the database floor of its
+poses (their true horizons located against the database, :mod:`.floor`).  Metres and degrees.
 """
 from __future__ import annotations
 
@@ -49,6 +50,13 @@ def group_key(row: dict) -> str:
     return f"{t}/{row['preset']}"
 
 
+def _floor_limited(row: dict) -> bool:
+    """True when the row's pose has a database floor beyond 2.5 m or not ``ok``: its true horizon alone does
+    not give a tight fix there (the site or the database limits the case, not the image chain)."""
+    e = _f(row.get("floor_error_m"))
+    return math.isfinite(e) and (e > 2.5 or row.get("floor_status") != "ok")
+
+
 def aggregate(rows: list[dict]) -> dict:
     """Statistics of a group of rows."""
     n = len(rows)
@@ -62,6 +70,7 @@ def aggregate(rows: list[dict]) -> dict:
     n_kept = sum(int(_f(r.get("n_kept")) or 0) for r in returned if math.isfinite(_f(r.get("n_kept"))))
     n_bad = sum(int(_f(r.get("n_gt1deg")) or 0) for r in returned if math.isfinite(_f(r.get("n_gt1deg"))))
     within = lambda m, d: sum(1 for r in fixes if _f(r["error_m"]) <= m and _f(r["heading_error_deg"]) <= d)  # noqa: E731
+    misses = [r for r in rows if not (_f(r.get("error_m")) <= 5.0 and _f(r.get("heading_error_deg")) <= 1.0)]
     return {
         "cases": n,
         "skyline_returned": _share(len(returned), n),
@@ -70,6 +79,9 @@ def aggregate(rows: list[dict]) -> dict:
         "kept_samples_gt1deg_share": _share(n_bad, n_kept),
         "error_m": _stats([_f(r.get("error_m")) for r in fixes]),
         "heading_error_deg": _stats([_f(r.get("heading_error_deg")) for r in fixes]),
+        "floor_error_m": _stats([_f(r.get("floor_error_m")) for r in rows]),
+        "beyond_5m_1deg": len(misses),
+        "beyond_5m_1deg_floor_limited": sum(1 for r in misses if _floor_limited(r)),
         "within_2.5m_0.5deg": _share(within(2.5, 0.5), n),
         "within_5m_1deg": _share(within(5.0, 1.0), n),
         "status": dict(sorted(status.items())),
@@ -115,7 +127,8 @@ def markdown(summary: dict) -> str:
     """The groups of a summary as a markdown table beside the report's figures (``summary.md``)."""
     from render_service.campaign.runner import screen_summary  # noqa: PLC0415
 
-    refs = {ln.split()[0]: ln.split("  ")[-1].strip() for ln in screen_summary(summary)[2:-1]}
+    refs = {ln.split()[0]: ln.split("  ")[-1].strip() for ln in screen_summary(summary)
+            if ln.split() and ln.split()[0] in summary["groups"]}
 
     def g(v, spec=".2f"):
         return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
@@ -125,20 +138,30 @@ def markdown(summary: dict) -> str:
              f"sha256 {c['dem_sha256'][:12]}): "
              f"{c['poses']} poses ({len(c['rejected_poses'])} rejected for a flat horizon), {c['rows']} cases.", "",
              "| group | cases | skyline returned | kept/seen (median) | extraction error median (deg) | kept > 1 deg | "
-             "error median (m) | p90 (m) | max (m) | heading median (deg) | heading max (deg) | ok/amb/fail/no fix | "
-             "wrong (ok) | right flagged | <= 2.5 m & 0.5 deg | <= 5 m & 1 deg | report |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "error median (m) | p90 (m) | max (m) | beyond 5 m / 1 deg (floor-limited) | heading median (deg) | "
+             "heading max (deg) | "
+             "ok/amb/fail/no fix | wrong (ok) | right flagged | <= 2.5 m & 0.5 deg | <= 5 m & 1 deg | report |",
+             "|" + " --- |" * 18]
     for key, a in summary["groups"].items():
         st = a["status"]
         lines.append(
             f"| {key} | {a['cases']} | {g(a['skyline_returned'], '.0%')} | {g(a['kept_fraction']['median'], '.0%')} | "
             f"{g(a['extract_median_abs_err_deg']['median'], '.3f')} | {g(a['kept_samples_gt1deg_share'], '.2%')} | "
             f"{g(a['error_m']['median'])} | {g(a['error_m']['p90'])} | {g(a['error_m']['max'], '.1f')} | "
+            f"{a.get('beyond_5m_1deg', '-')} ({a.get('beyond_5m_1deg_floor_limited', '-')}) | "
             f"{g(a['heading_error_deg']['median'])} | {g(a['heading_error_deg']['max'])} | "
             f"{st.get('ok', 0)}/{st.get('ambiguous', 0)}/{st.get('failed', 0)}/{st.get('no_fix', 0)} | "
             f"{a['wrong']} ({a['wrong_ok']}) | {g(a['right_flagged_share'], '.0%')} | "
             f"{g(a['within_2.5m_0.5deg'], '.0%')} | "
             f"{g(a['within_5m_1deg'], '.0%')} | {refs.get(key, '')} |")
+    fl = summary.get("floor") or {}
+    if fl.get("n"):
+        limited = ", ".join(str(i) for i in fl["limited_poses"])
+        lines += ["", "Database floor (each pose's true horizon located lost in space against the database; "
+                      "floor-limited: a case whose pose's floor is beyond 2.5 m or not ok): "
+                      f"median {fl['error_m_median']:.2f} m, p90 {fl['error_m_p90']:.2f} m, "
+                      f"max {fl['error_m_max']:.2f} m, "
+                      f"{fl['ok']} of {fl['n']} ok" + (f"; limited poses: {limited}" if limited else "") + "."]
     r = summary["run"]
     lines += ["", f"Wall {r['wall_s']:.0f} s, CPU {r['cpu_s_main'] + r['cpu_s_workers']:.0f} s (main + workers), "
                   f"peak RSS main {r['peak_rss_mb_main']:.0f} MB, workers {r['peak_rss_mb_workers']} MB, "

@@ -273,6 +273,33 @@ def test_rows_score_the_fix_against_the_truth_and_flag_wrong_ok():
     assert agg["error_m"]["n"] == 3 and agg["error_m"]["max"] == pytest.approx(30.0)
 
 
+def test_rows_carry_their_poses_database_floor_and_misses_say_whether_the_floor_explains_them():
+    """A case located against the campaign's database gets its pose's floor (the true horizon located alone); a
+    miss (beyond 5 m or 1 deg) at a pose whose floor is beyond 2.5 m, or not ``ok``, counts as floor-limited."""
+    from render_service.campaign.floor import floor_summary
+
+    _, cand = _row(None)
+    near, _ = _row(_Fix(cand["x"] + 1.0, cand["y"], cand["heading_deg"]))
+    chain_miss, _ = _row(_Fix(cand["x"] + 8.0, cand["y"], cand["heading_deg"]))
+    site_miss, _ = _row(_Fix(cand["x"] + 40.0, cand["y"], cand["heading_deg"], status="ambiguous"))
+    large, _ = _row(_Fix(cand["x"] + 40.0, cand["y"], cand["heading_deg"]))
+    robust, _ = _row(_Fix(cand["x"] + 40.0, cand["y"], cand["heading_deg"]))
+    large["kind"], robust["table"] = "lost_large", "R"          # located against other databases: no floor
+    for r, pose in ((near, 0), (chain_miss, 0), (site_miss, 1), (large, 1), (robust, 1)):
+        r["pose"] = pose
+    floor = [{"index": 3, "status": "ok", "error_m": 0.21}, {"index": 7, "status": "ambiguous", "error_m": 31.0}]
+    scoring.add_floor([near, chain_miss, site_miss, large, robust], floor)
+    assert (near["floor_error_m"], near["floor_status"]) == (0.21, "ok")
+    assert (site_miss["floor_error_m"], site_miss["floor_status"]) == (31.0, "ambiguous")
+    assert large["floor_error_m"] == "" and robust["floor_error_m"] == ""
+    agg = summary.aggregate([near, chain_miss, site_miss])
+    assert agg["beyond_5m_1deg"] == 2 and agg["beyond_5m_1deg_floor_limited"] == 1
+    assert agg["floor_error_m"]["max"] == pytest.approx(31.0)
+    fs = floor_summary(floor)
+    assert fs["limited_poses"] == [1] and fs["ok"] == 1 and fs["error_m_max"] == pytest.approx(31.0)
+    assert {"floor_error_m", "floor_status"} <= set(scoring.COLUMNS)
+
+
 def test_rows_name_the_look_rendered_on_the_terrains_body():
     assert scoring._look_name("realistic", "moon") == "realistic-moon"
     assert scoring._look_name("distorted", "earth") == "distorted-earth"
@@ -372,7 +399,7 @@ def test_the_database_floor_locates_each_true_horizon_near_its_pose(campaign_run
     """benchmarks.campaign_db_floor: the run's ray-marched truths, as level queries in the north frame,
     land within half a grid step of the poses drawn off the grid, at heading 0 within 3 sigma (a truth or
     database azimuth frame off by a sample, or the poses mixed up, puts them metres to hundreds of metres
-    away, or a degree off)."""
+    away, or a degree off).  The campaign itself wrote that floor into its rows and summary."""
     from benchmarks.campaign_db_floor import floor_rows, main
     from board.skydb import SkyDB
 
@@ -385,6 +412,17 @@ def test_the_database_floor_locates_each_true_horizon_near_its_pose(campaign_run
         assert r["error_m"] <= 0.5 * step, r
         assert r["heading_error_deg"] <= 3.0 * r["sigma_heading_deg"] and r["status"] != "failed", r
     assert main([str(out / "no such run")]) == 2
+    # the campaign wrote the same floor beside each case located against its database, and in its summary
+    for c in _rows(out):
+        if c["table"] != "R" and c["kind"] in scoring.FLOOR_KINDS:
+            f = rows[int(c["pose"])]
+            assert float(c["floor_error_m"]) == pytest.approx(f["error_m"], abs=1e-3), c["case_id"]
+            assert c["floor_status"] == f["status"], c["case_id"]
+        else:
+            assert c["floor_error_m"] == "" and c["floor_status"] == ""
+    doc = json.loads((out / "summary.json").read_text())["floor"]
+    assert doc["n"] == len(poses) and doc["error_m_max"] == pytest.approx(max(r["error_m"] for r in rows), abs=1e-3)
+    assert "Database floor" in (out / "summary.md").read_text()
 
 
 def test_reextraction_variants_name_a_wrong_field_or_value():
