@@ -478,8 +478,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
     if P.reseat_on_step_above and take.any():
         valid = _masks_after_reseat(valid, take, first_conf, first_b, b, n_seen_col, wrap, P)
     masked_share = float(np.mean(~valid[seen_cols])) if seen_cols.any() else 0.0
-    if init_classes is None and colour is not None and (no_sky >= P.colour_second_pass_fraction
-                                                        or masked_share >= P.colour_second_pass_masked):
+    # (only for a view whose sky and ground differ in colour: the classes of the second pass start from it)
+    if (init_classes is None and colour is not None and abs(offset) >= P.sky_colour_min_contrast
+            and (no_sky >= P.colour_second_pass_fraction or masked_share >= P.colour_second_pass_masked)):
         # where a slope was taken for the sky, the sector's classes were fitted on it and the line followed
         # its foot; the real horizon above it (often there, near the top of the view) is found again from
         # classes that start from the pixels' colour: the sky's colour as sky, the ground's as ground.  The

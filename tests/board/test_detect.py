@@ -588,3 +588,26 @@ def test_the_horizon_above_a_near_slope_is_found_again_from_the_colours(params):
                                                                reseat_on_step_above=False))
     assert once.valid[sector].mean() <= 0.85
     assert np.nanmax(np.abs(once.line_row - rows)) <= 2.0      # what one pass keeps is right too
+
+
+def test_a_grey_view_with_masked_columns_does_not_start_the_colour_second_pass(params):
+    """The colour second pass starts its classes from the pixels' colour (their share of the way from the
+    ground's colour to the sky's): a view whose sky and ground have one colour has no such share.  A grey
+    lunar-like view (black sky, grey ground, three equal channels) whose ground fades into the sky over a third
+    of the azimuths keeps its plain columns, masks the faded ones, and never runs that pass (before, the
+    share was 0 / 0 there: a pass on empty classes and a division warning)."""
+    import warnings
+
+    H, W = GEOM.height, GEOM.width
+    rows = np.full(W, 150.0) + 20.0 * np.sin(np.arange(W) * 2 * np.pi / W)
+    r = np.arange(H)[:, None]
+    ground = np.where(np.arange(W) < W // 3, 0.02, 0.45)[None, :]    # a third of the ground as dark as the sky
+    img = np.where(r >= rows[None, :], ground, 0.02) + 0.003 * np.random.default_rng(3).standard_normal((H, W))
+    grey3 = _u8(np.repeat(img[..., None], 3, axis=2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        det = detect_skyline(grey3, wrap=True, params=params)
+    assert "colour_second_pass" not in det.diagnostics
+    plain = np.arange(W) >= W // 3 + 20
+    assert det.valid[plain].mean() >= 0.95 and not det.valid[: W // 3 - 20].any()
+    assert np.max(np.abs(det.line_row - rows)[det.valid]) <= 1.0
