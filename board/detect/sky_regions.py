@@ -107,6 +107,7 @@ class DetectorParams:
                                                 # re-fit on its line: fitted over every row above the line, the
                                                 # clear upper sky makes a whitish haze low in the sky ground again),
                                                 # when the better detection still masks colour_second_pass_masked
+                                                # of the columns (those with the sky's colour above the first line)
     max_direct_pixels: int = 1_200_000  # larger images: detected on a reduced copy of about this many pixels, the
                                         # line then refined at full resolution in a band around it (0: never)
     monotone_classes: bool = True       # intensity or colour beyond a class's centre (away from the other class) counts
@@ -495,22 +496,29 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         # ... and on those classes without their re-fit: fitted on every row above the second pass's line, the
         # clear upper sky (a narrow spread) makes the 20-40 rows of whitish haze above a far floor's horizon a
         # ground value in grey and colour alike, and the path climbs back into the gradient.  Tried only while
-        # the better detection so far still masks P.colour_second_pass_masked of the seen columns; of the
-        # detections, the one that keeps the most columns (every one under the same checks) is kept
+        # the better detection so far still masks P.colour_second_pass_masked of the seen columns where the
+        # first line had the sky's colour above it; of the detections, the one that keeps the most columns
+        # (every one under the same checks) is kept
         best, label, best_valid = valid.sum(), None, valid
         if again.valid.sum() > best:
             best, label, best_valid = again.valid.sum(), "kept", again.valid
-        still_masked = float(np.mean(~best_valid[seen_cols])) if seen_cols.any() else 0.0
+        # columns masked under a sky-coloured window of the first line (a column without sky, a slope to the
+        # top of the view, is masked by right and leaves nothing for a third detection to find; a line at the top
+        # of the view has no window above it to tell)
+        masked_sky = ~best_valid & (c_colour >= 0.5) & (b - first_seen >= P.contrast_window_px + P.min_seen_rows)
+        still_masked = float(np.mean(masked_sky[seen_cols])) if seen_cols.any() else 0.0
+        n_detections = 2
         if (P.colour_second_pass_unrefitted and P.iterations > 1
                 and still_masked >= P.colour_second_pass_masked):
             plain = _detect_direct(image, seen, wrap, replace(P, iterations=1), init_classes=init)
+            n_detections = 3
             if plain.valid.sum() > best:
                 again, label = plain, "kept, classes of the colour"
         del init
         if label is not None:
-            again.diagnostics["colour_second_pass"] = label
+            again.diagnostics.update(colour_second_pass=label, detections_run=n_detections)
             return again
-        diag["colour_second_pass"] = "ran, first pass kept"
+        diag.update(colour_second_pass="ran, first pass kept", detections_run=n_detections)
     last_seen = H - 1 - np.argmax(seen[::-1], axis=0)
     diag["line_at_top_fraction"] = float(np.mean(b <= first_seen + 1))
     diag["line_at_bottom_fraction"] = float(np.mean(b >= last_seen))
