@@ -409,7 +409,7 @@ def _database_floor(out: Path, say) -> list[dict]:
         return []
     fs = floor_summary(rows)
     if fs["n"]:
-        say(f"  database floor: {fs['n']} true horizons located against the database in "
+        say(f"  database floor: {fs['n']} true horizon{'s' if fs['n'] != 1 else ''} located against the database in "
             f"{time.perf_counter() - t0:.0f} s: median {fs['error_m_median']:.2f} m, max {fs['error_m_max']:.2f} m, "
             f"{fs['ok']} ok" + (f"; poses limited by the site or the database: {fs['limited_poses']}"
                                if fs["limited_poses"] else ""))
