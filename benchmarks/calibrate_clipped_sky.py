@@ -11,7 +11,7 @@ The printed table gives, per run and look, the bins' mean excess and the model's
 ``CLIPPED_SHIFT_GAIN`` and at the gain fitted (least squares through the origin) on the runs given, and the
 mean error of clipped and unclipped columns with the model on (what matters to the pose: the difference).
 
-    python -m benchmarks.calibrate_clipped_sky RUN [RUN ...] [--looks realistic,distorted] [--jobs 2]
+    python -m benchmarks.calibrate_clipped_sky RUN [RUN ...] [--looks realistic,distorted] [--cases GLOB] [--jobs 2]
 """
 from __future__ import annotations
 
@@ -66,13 +66,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--looks", default="realistic")
+    ap.add_argument("--cases", default="t4-{look}-p*",
+                    help="case folders to read, a glob with {look} (default the level panoramas; "
+                         "t5-{look}-*-p* the tilted ones)")
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args(argv)
     looks = [x for x in a.looks.split(",") if x]
     jobs = []
     for run in a.runs:
         for look in looks:
-            for f in sorted((run / "cases").glob(f"t4-{look}-p*")):
+            for f in sorted((run / "cases").glob(a.cases.format(look=look))):
                 if (f / "row.json").is_file() and (f / "panorama" / "panorama.json").is_file():
                     jobs.append((str(run), str(f), run.name, look))
     if not jobs:

@@ -12,10 +12,13 @@ with ``band_deg`` the clipped band's height in degrees of elevation and ``width_
 (pixels; ``EDGE_WIDTH_FALLBACK_PX`` when the view has too few unclipped steps to measure it).  The form is an
 empirical fit: on the simulator's renders the offset grows about linearly with the band's height up to
 20 degrees, and about twice as fast with the lens blur of the ``distorted`` look (width 0.75 px) as without
-(0.54 px).  ``CLIPPED_SHIFT_GAIN`` was fitted on Aristoteles 41 (Moon, realistic look) by
-``python -m benchmarks.calibrate_clipped_sky``; docs/benchmarks.md (session 10) gives the held-out checks.
-A sky clipped in every column of a view is moved as much as one clipped in part of it; a clipped ground
-(a black sky over saturated ground) is not modelled.
+(0.54 px).  The band is counted over the mixed row just above the line (``DetectorParams.clipped_gap_rows``):
+a third of a high sun's clipped columns have that row below full scale.  ``CLIPPED_SHIFT_GAIN`` was fitted on
+Aristoteles 114's 30 pitched views (Moon, realistic look; session 30) by ``python -m
+benchmarks.calibrate_clipped_sky RUN --cases 't5-{look}-pitch-p*'``; docs/benchmarks.md (session 30) gives the
+held-out checks (session 10's gain, 0.029, was fitted with a count that missed those columns and took them
+for unclipped ones).  A sky clipped in every column of a view is moved as much as one clipped in part of it; a
+clipped ground (a black sky over saturated ground) is not modelled.
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ import math
 import numpy as np
 
 #: offset per degree of clipped band and per squared pixel of step width (fitted, see the module docstring)
-CLIPPED_SHIFT_GAIN = 0.029
+CLIPPED_SHIFT_GAIN = 0.053
 #: step width assumed where a view has too few unclipped steps to measure it (pixels; the simulator's
 #: renders without lens blur measure 0.53-0.57)
 EDGE_WIDTH_FALLBACK_PX = 0.55

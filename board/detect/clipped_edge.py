@@ -21,18 +21,34 @@ import math
 import numpy as np
 
 
-def clipped_run_above(grey: np.ndarray, b: np.ndarray, level: float) -> np.ndarray:
+def clipped_run_above(grey: np.ndarray, b: np.ndarray, level: float, gap: int = 0) -> np.ndarray:
     """Per column, the number of rows directly above row ``b`` (rows ``< b``) whose grey level is at least
-    ``level`` (fraction of full scale, as ``grey``), up to the first row below it.  (W,) int32 rows."""
+    ``level`` (fraction of full scale, as ``grey``), up to the first row below it.  (W,) int32 rows.
+
+    ``gap`` : up to this many unsaturated rows directly above the line are stepped over before the run is
+    counted (the mixed pixels of a blurred edge: a sky clipped two rows above the line is clipped although
+    the row between, part sky and part ground, is not); the rows stepped over are not counted."""
     H, W = grey.shape
     sat = grey >= np.float32(level)
     # index of the last unsaturated row at or above each row (-1 where none)
     idx = np.where(sat, np.int32(-1), np.arange(H, dtype=np.int32)[:, None])
     np.maximum.accumulate(idx, axis=0, out=idx)
-    top = np.clip(np.asarray(b, dtype=np.int64) - 1, -1, H - 1)
     cols = np.arange(W)
-    last_unsat = np.where(top >= 0, idx[np.maximum(top, 0), cols], -1)
-    return np.where(top >= 0, top - last_unsat, 0).astype(np.int32)
+    bi = np.asarray(b, dtype=np.int64)
+    run = np.zeros(W, dtype=np.int64)
+    open_ = np.ones(W, dtype=bool)      # every row between the line and the one examined is unsaturated
+    for k in range(int(gap) + 1):
+        top = np.clip(bi - 1 - k, -1, H - 1)
+        last_unsat = np.where(top >= 0, idx[np.maximum(top, 0), cols], -1)
+        here = np.where(top >= 0, top - last_unsat, 0)
+        if k == 0:
+            run = here
+            continue
+        # step over row top + 1 only where it and every row between it and the line are unsaturated
+        between = ~sat[np.clip(top + 1, 0, H - 1), cols] & (top + 1 >= 0)
+        open_ &= between
+        run = np.where((run == 0) & open_, here, run)
+    return run.astype(np.int32)
 
 
 def edge_width_px(lin: np.ndarray, b: np.ndarray, clipped: np.ndarray, *, window: int = 5,

@@ -74,6 +74,8 @@ class DetectorParams:
     mask_margin_columns: int = 6        # columns next to a masked run (>= min_run_columns) are masked too:
                                         # the smooth path needs a few columns to leave a wrong row
     saturation_level: float = 0.98      # fraction of full scale counted as saturated
+    clipped_gap_rows: int = 1           # unsaturated (mixed) rows directly above the line stepped over when the
+                                        # clipped band of sky above it is counted (board.detect.clipped_edge)
     min_seen_rows: int = 3              # seen rows needed on each side of the line
     wrap_margin_columns: int = 200
     use_colour: bool = True             # add log(blue / red) to the features of a colour image
@@ -453,7 +455,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             np.minimum(context, colour[0], out=context)
         return y, conf, context, colour
 
-    clipped = clipped_run_above(grey, b, P.saturation_level)
+    clipped = clipped_run_above(grey, b, P.saturation_level, P.clipped_gap_rows)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     del lin_raw
     checks: dict = {}
@@ -479,7 +481,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         if take.any():
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
                                    np.where(take, scored["context"], context), np.where(take, b2, b))
-            clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level), clipped)
+            clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level, P.clipped_gap_rows), clipped)
     lin = lin_rgb = node = None          # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
@@ -866,8 +868,9 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
 
     def clipped_rows(b: np.ndarray) -> np.ndarray:
         # the clipped band above the line: counted in the band, and on the reduced copy where it fills the band
-        clipped = clipped_run_above(grey, b, P.saturation_level).astype(np.float64)
-        return np.where(b - clipped <= 0, np.maximum(clipped, clipped_c), clipped)
+        clipped = clipped_run_above(grey, b, P.saturation_level, P.clipped_gap_rows).astype(np.float64)
+        # (a run stepped over a mixed row above the line reaches the band's top a row or two sooner)
+        return np.where(b - clipped <= P.clipped_gap_rows, np.maximum(clipped, clipped_c), clipped)
 
     def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None,
                             checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -31,6 +31,53 @@ def test_clipped_run_above_counts_the_saturated_rows_just_above_the_line():
     np.testing.assert_array_equal(got, want)
 
 
+def _brute_run(grey: np.ndarray, b: np.ndarray, level: float, gap: int) -> np.ndarray:
+    """Walk up from the line: step over up to ``gap`` unsaturated rows, then count the saturated ones."""
+    H, W = grey.shape
+    want = np.zeros(W, int)
+    for c in range(W):
+        r = b[c] - 1
+        skipped = 0
+        while r >= 0 and grey[r, c] < level and skipped < gap:
+            r -= 1
+            skipped += 1
+        while r >= 0 and grey[r, c] >= level:
+            want[c] += 1
+            r -= 1
+    return want
+
+
+@pytest.mark.parametrize("gap", [1, 2])
+def test_clipped_run_above_steps_over_the_mixed_rows_just_above_the_line(gap):
+    rng = np.random.default_rng(11 + gap)
+    H, W = 40, 400
+    grey = rng.uniform(0.0, 0.97, (H, W)).astype(np.float32)
+    b = rng.integers(0, H + 1, W)
+    for c in range(W):
+        if b[c] < 2:
+            continue
+        top = rng.integers(0, b[c] - 1)
+        grey[top:b[c] - rng.integers(0, 4), c] = 1.0     # a clipped run ending 0-3 rows above the line
+    got = clipped_run_above(grey, b, 0.98, gap)
+    np.testing.assert_array_equal(got, _brute_run(grey, b, 0.98, gap))
+    assert (got > clipped_run_above(grey, b, 0.98)).any()    # the gap finds runs the plain count misses
+
+
+def test_a_clipped_blurred_sky_is_counted_whatever_the_edge_phase():
+    """A sky three times full scale, blurred (sigma 0.55 px) and clipped: where the edge's sub-pixel phase
+    leaves the row just above the line part ground (unclipped), the band is still counted over it."""
+    lin, edge = _blurred_step(0.55, sky=3.0, ground=0.3)
+    grey = np.minimum(lin, 1.0)
+    grey[:20] = 0.9                                       # the sky falls below full scale 10 rows above the edge
+    # the line as a classifier of the clipped picture draws it: the first row closer to the ground than to
+    # the (clipped) sky; the row above it can be part ground, below full scale
+    b = np.argmax(grey < 0.5 * (1.0 + 0.3), axis=0)
+    plain = clipped_run_above(grey, b, 0.98)
+    stepped = clipped_run_above(grey, b, 0.98, 1)
+    assert (plain == 0).mean() > 0.2                      # the mixed row hides the band from the plain count
+    assert (stepped >= 9).all() and (stepped <= 11).all()    # rows 20 to the edge (30 +- 0.5)
+
+
 def _blurred_step(sigma: float, *, width: int = 600, height: int = 60, sky: float = 0.8, ground: float = 0.1,
                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(linear image, edge row per column): a step at a random sub-pixel row per column, integrated exactly over

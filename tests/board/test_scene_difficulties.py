@@ -157,10 +157,11 @@ def test_earth_sunlight_is_exposed_for_and_not_clipped(site):
 
 
 def test_clipped_sky_line_is_moved_to_its_edge(site):
-    """The Moon look's bright sky clips towards the sun: the clipped half of the blurred step is gone and the
-    line found lies below the edge there (0.1-0.3 px, more the higher the clipped band above it).  The
-    extraction's model (board.clipped_sky, fitted on other renders: Aristoteles 41) moves it back: against
-    the ray-marched truth, the clipped samples' mean error comes to that of the unclipped ones."""
+    """The Moon look's bright sky clips towards a high sun: the clipped half of the blurred step is gone and
+    the line found lies below the edge there (0.1-0.3 px, more the higher the clipped band above it), also
+    where the mixed row just above the line is not itself clipped (the band is counted over it).  The
+    extraction's model (board.clipped_sky, fitted on other renders: Aristoteles 114) moves it back: against
+    the ray-marched truth, the clipped samples' mean error is less than half what it was."""
     from board.extraction import ExtractionOptions
 
     terrain, root = site
@@ -171,19 +172,21 @@ def test_clipped_sky_line_is_moved_to_its_edge(site):
     truth = truth_on_grid(fine)
     view = in_view(truth, pano.geometry)
     g = pano.geometry
-    diffs = {}
+    means, bands = {}, {}
     for gain in (0.0, ExtractionOptions().clipped_sky_gain):
         res = extract_from_panorama(pano, options=replace(ExtractionOptions(), clipped_sky_gain=gain))
         el = res.skyline.elevation_deg
         n = el.size
         rel = np.mod(np.arange(n) * 360.0 / n + 180.0, 360.0) - 180.0
         cols = np.rint((rel - g.azimuth_col0_deg) / g.azimuth_step_deg).astype(int) % g.width
-        band = res.detection.clipped_rows[cols]
+        band = res.detection.clipped_rows[cols] * abs(g.elevation_step_deg)
         err = (el - truth) / g.elevation_step_deg                     # elevation pixels, + = line too high
-        kept = view & np.isfinite(err)
-        clipped, plain = kept & (band > 0), kept & (band == 0)
-        assert clipped.sum() > 100 and plain.sum() > 50              # the scene has both kinds of columns
-        diffs[gain] = float(np.mean(err[clipped]) - np.mean(err[plain]))
-    off, on = diffs[0.0], diffs[ExtractionOptions().clipped_sky_gain]
-    assert off < -0.05, diffs                                         # the clipped line lies below the edge
-    assert abs(on) < 0.5 * abs(off), diffs                            # ... and is moved back to it
+        clipped = view & np.isfinite(err) & (band > 0)
+        assert clipped.sum() > 100                                    # a high sun: most of the circle clips
+        means[gain] = float(np.mean(err[clipped]))
+        bands[gain] = float(np.median(band[clipped]))
+    off, on = means[0.0], means[ExtractionOptions().clipped_sky_gain]
+    assert off < -0.08, (means, bands)                                # the clipped line lies below the edge
+    # ... and is moved back towards it: the model is an empirical fit of the band's height (another terrain and
+    # sky: this view is over-corrected by about 0.08 px, from 0.21 px low)
+    assert abs(on) < 0.5 * abs(off), (means, bands)
