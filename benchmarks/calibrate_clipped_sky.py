@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| run | look | width (px) | band (deg) | columns | excess (px) | model, current gain | model, fitted |")
     print("| --- | --- | ---: | --- | ---: | ---: | ---: | ---: |")
     for (name, look), (err, band, w2, wmed) in groups.items():
-        base = err[band == 0].mean()
+        base = err[band == 0].mean() if (band == 0).any() else float("nan")
         for lo, hi in zip(BINS_DEG[:-1], BINS_DEG[1:]):
             m = (band >= lo) & (band < hi)
             if m.sum() < 20:
@@ -108,6 +108,10 @@ def main(argv: list[str] | None = None) -> int:
             pred = w2[m] * band[m]
             print(f"| {name} | {look} | {wmed:.2f} | {lo:g}-{hi:g} | {m.sum()} | {err[m].mean() - base:+.3f} | "
                   f"{-CLIPPED_SHIFT_GAIN * pred.mean():+.3f} | {-fitted * pred.mean():+.3f} |")
+        if not (band > 0).any() or not (band == 0).any():
+            print(f"| {name} | {look} | | {int((band > 0).sum())} clipped, {int((band == 0).sum())} unclipped columns: "
+                  "nothing to compare | | | |")
+            continue
         corr = err + CLIPPED_SHIFT_GAIN * w2 * band
         print(f"| {name} | {look} | | model on: clipped - unclipped mean | {int((band > 0).sum())} | "
               f"{corr[band > 0].mean() - corr[band == 0].mean():+.3f} (off: {err[band > 0].mean() - base:+.3f}) | | |")
