@@ -36,18 +36,13 @@ def clipped_run_above(grey: np.ndarray, b: np.ndarray, level: float, gap: int = 
     cols = np.arange(W)
     bi = np.asarray(b, dtype=np.int64)
     run = np.zeros(W, dtype=np.int64)
-    open_ = np.ones(W, dtype=bool)      # every row between the line and the one examined is unsaturated
+    open_ = np.ones(W, dtype=bool)      # every row between the line and row bi - 1 - k is unsaturated
     for k in range(int(gap) + 1):
+        if k:                           # row bi - k is stepped over only where it is unsaturated too
+            open_ &= (bi - k >= 0) & ~sat[np.clip(bi - k, 0, H - 1), cols]
         top = np.clip(bi - 1 - k, -1, H - 1)
         last_unsat = np.where(top >= 0, idx[np.maximum(top, 0), cols], -1)
-        here = np.where(top >= 0, top - last_unsat, 0)
-        if k == 0:
-            run = here
-            continue
-        # step over row top + 1 only where it and every row between it and the line are unsaturated
-        between = ~sat[np.clip(top + 1, 0, H - 1), cols] & (top + 1 >= 0)
-        open_ &= between
-        run = np.where((run == 0) & open_, here, run)
+        run = np.where((run == 0) & open_, np.where(top >= 0, top - last_unsat, 0), run)
     return run.astype(np.int32)
 
 
