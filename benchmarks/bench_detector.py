@@ -265,12 +265,35 @@ def _blind_slope_scene(g, rng: np.random.Generator) -> np.ndarray:
     return img
 
 
+def _clipped_scene(g, rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) uint8 grey: a sky brightening towards a random skyline past the sensor's full scale (the Moon's
+    realistic look under a high sun), the edge blurred by the optics (Gaussian, 0.8 px) before the sensor clips
+    it, over darker ground: the detector's clipped-sky count (:mod:`board.detect.clipped_edge`) runs on every
+    column."""
+    import cv2
+
+    from board.synthetic import SkylineFunction
+
+    az, el = g.azimuths_deg(), g.elevations_deg()
+    horizon = SkylineFunction.random(2028)(az)
+    above = el[:, None] - horizon[None, :]                              # degrees above the skyline
+    radiance = np.where(above > 0.0, 0.75 + 0.6 * np.exp(-np.maximum(above, 0.0) / 8.0), 0.35).astype(np.float32)
+    radiance = cv2.GaussianBlur(radiance, (0, 0), 0.8)
+    radiance += rng.normal(0.0, 0.02, radiance.shape).astype(np.float32)
+    grey = (np.clip(radiance, 0.0, 1.0) * 255 + 0.5).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=2)
+
+
+#: the speed scenes, in the order measured
+SPEED_SCENES = ("plain", "slope", "blind", "clipped")
+
+
 def speed(scene: str = "plain") -> dict:
     """Detector speed and peak memory on a 3600 x 1800 colour panorama read from disk, in a fresh
     child process (peak RSS, VmHWM: the interpreter, numpy/OpenCV, the image and the extraction).
     CPU and wall: the best of 3 extractions (loading not included).  ``scene``: "plain" (a grey
     skyline: one pass), "slope" (:func:`_slope_scene`: the colour second pass runs too) or "blind" (:func:`
-    _blind_slope_scene`: three detections)."""
+    _blind_slope_scene`: three detections) or "clipped" (:func:`_clipped_scene`: a sky clipped at the line)."""
     import tempfile
 
     from board.acquisition import PanoramaGeometry, write_panorama
@@ -281,6 +304,8 @@ def speed(scene: str = "plain") -> dict:
         img = _slope_scene(g, np.random.default_rng(1))
     elif scene == "blind":
         img = _blind_slope_scene(g, np.random.default_rng(1))
+    elif scene == "clipped":
+        img = _clipped_scene(g, np.random.default_rng(1))
     else:
         grey = synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1)
         img = np.repeat((np.clip(grey, 0, 1) * 255 + 0.5).astype(np.uint8)[..., None], 3, axis=2)
@@ -293,6 +318,19 @@ def speed(scene: str = "plain") -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def print_speed(scenes: tuple[str, ...] = SPEED_SCENES) -> None:
+    """Measure and print :func:`speed` for each scene."""
+    for scene in scenes:
+        s = speed(scene)
+        print(f"\nspeed 3600 x 1800 colour panorama, {scene} scene (colour second pass: {s['second_pass']}, "
+              f"detections run: {s.get('detections_run', 1)}): "
+              f"wall {s['wall_s']:.2f} s, CPU {s['cpu_s']:.2f} s, "
+              f"peak RSS {s['peak_rss_mb']:.0f} MB (after the imports: {s['imports_mb']:.0f} MB, after loading "
+              f"the panorama folder: {s['rss_before_mb']:.0f} MB), "
+              f"peak of the extraction's own allocations (tracemalloc) {s['extraction_peak_mb']:.0f} MB, "
+              f"status {s['status']}", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--split", default="tune,validate", help="comma-separated splits")
@@ -300,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--presets", default=",".join(PRESETS))
     p.add_argument("--no-speed", action="store_true")
+    p.add_argument("--speed-only", action="store_true", help="only the speed scenes (no labels)")
     p.add_argument("--cached-only", action="store_true", help="measure the labels already rendered, render none")
     p.add_argument("--other-detector", help="also run this version of board/detect/sky_regions.py (a file)")
     p.add_argument("--upsample", type=float, default=1.0,
@@ -311,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     for noisy in ("blender_addon", "board", "render_service"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
+    if a.speed_only:
+        print_speed()
+        return 0
     folders = []
     for split in a.split.split(","):
         if split not in SPLITS:
@@ -332,15 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         dets["other"] = detector_from_file(a.other_detector)
     print_table(evaluate(folders, dets, verbose=a.verbose, upsample=a.upsample))
     if not a.no_speed:
-        for scene in ("plain", "slope", "blind"):
-            s = speed(scene)
-            print(f"\nspeed 3600 x 1800 colour panorama, {scene} scene (colour second pass: {s['second_pass']}, "
-                  f"detections run: {s.get('detections_run', 1)}): "
-                  f"wall {s['wall_s']:.2f} s, CPU {s['cpu_s']:.2f} s, "
-                  f"peak RSS {s['peak_rss_mb']:.0f} MB (after the imports: {s['imports_mb']:.0f} MB, after loading "
-                  f"the panorama folder: {s['rss_before_mb']:.0f} MB), "
-                  f"peak of the extraction's own allocations (tracemalloc) {s['extraction_peak_mb']:.0f} MB, "
-                  f"status {s['status']}")
+        print_speed()
     return 0
 
 
