@@ -125,6 +125,11 @@ class DetectorParams:
                                         # again kept at or above that step (a far ridge behind a near slope's
                                         # edge); a column takes the new line only where it passes every check
 
+    def clipped_above(self, grey: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Per column, the clipped rows of sky directly above row ``b`` (pixels), at this tuning's saturation
+        level and over up to ``clipped_gap_rows`` mixed rows (:func:`board.detect.clipped_edge.clipped_run_above`)."""
+        return clipped_run_above(grey, b, self.saturation_level, self.clipped_gap_rows)
+
 
 @dataclass
 class Detection:
@@ -455,7 +460,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
             np.minimum(context, colour[0], out=context)
         return y, conf, context, colour
 
-    clipped = clipped_run_above(grey, b, P.saturation_level, P.clipped_gap_rows)
+    clipped = P.clipped_above(grey, b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
     del lin_raw
     checks: dict = {}
@@ -481,7 +486,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         if take.any():
             y, conf, context, b = (np.where(take, scored["y"], y), np.where(take, scored["conf"], conf),
                                    np.where(take, scored["context"], context), np.where(take, b2, b))
-            clipped = np.where(take, clipped_run_above(grey, b2, P.saturation_level, P.clipped_gap_rows), clipped)
+            clipped = np.where(take, P.clipped_above(grey, b2), clipped)
     lin = lin_rgb = node = None          # freed (the closures above are done with them)
     valid = _valid_columns(conf, n_seen_col, wrap, P)
     if P.reseat_on_step_above and take.any():
@@ -868,7 +873,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
 
     def clipped_rows(b: np.ndarray) -> np.ndarray:
         # the clipped band above the line: counted in the band, and on the reduced copy where it fills the band
-        clipped = clipped_run_above(grey, b, P.saturation_level, P.clipped_gap_rows).astype(np.float64)
+        clipped = P.clipped_above(grey, b).astype(np.float64)
         # (a run stepped over a mixed row above the line reaches the band's top a row or two sooner)
         return np.where(b - clipped <= P.clipped_gap_rows, np.maximum(clipped, clipped_c), clipped)
 
