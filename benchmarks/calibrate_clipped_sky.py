@@ -93,14 +93,20 @@ def main(argv: list[str] | None = None) -> int:
                     np.concatenate([np.full(c[0].size, c[2] ** 2) for c in cs]),
                     float(np.sqrt(np.median([c[2] ** 2 for c in cs]))))
               for key, cs in cases.items()}
-    x = np.concatenate([w2[band > 0] * band[band > 0] for _, band, w2, _ in groups.values()])
-    y = np.concatenate([err[band > 0] - err[band == 0].mean() for err, band, _, _ in groups.values()])
+    # a group needs clipped and unclipped columns: the unclipped ones are its reference
+    both = [g for g in groups.values() if (g[1] > 0).any() and (g[1] == 0).any()]
+    x = np.concatenate([w2[band > 0] * band[band > 0] for _, band, w2, _ in both]) if both else np.zeros(0)
+    y = np.concatenate([err[band > 0] - err[band == 0].mean() for err, band, _, _ in both]) if both else np.zeros(0)
     fitted = float(-(x @ y) / (x @ x)) if x.size else float("nan")
     print(f"gain: current {CLIPPED_SHIFT_GAIN:.4f}, fitted on these runs {fitted:.4f} (excess = -gain * width^2 * band)")
     print("| run | look | width (px) | band (deg) | columns | excess (px) | model, current gain | model, fitted |")
     print("| --- | --- | ---: | --- | ---: | ---: | ---: | ---: |")
     for (name, look), (err, band, w2, wmed) in groups.items():
-        base = err[band == 0].mean() if (band == 0).any() else float("nan")
+        if not (band > 0).any() or not (band == 0).any():
+            print(f"| {name} | {look} | | {int((band > 0).sum())} clipped, {int((band == 0).sum())} unclipped columns: "
+                  "nothing to compare | | | |")
+            continue
+        base = err[band == 0].mean()
         for lo, hi in zip(BINS_DEG[:-1], BINS_DEG[1:]):
             m = (band >= lo) & (band < hi)
             if m.sum() < 20:
@@ -108,10 +114,6 @@ def main(argv: list[str] | None = None) -> int:
             pred = w2[m] * band[m]
             print(f"| {name} | {look} | {wmed:.2f} | {lo:g}-{hi:g} | {m.sum()} | {err[m].mean() - base:+.3f} | "
                   f"{-CLIPPED_SHIFT_GAIN * pred.mean():+.3f} | {-fitted * pred.mean():+.3f} |")
-        if not (band > 0).any() or not (band == 0).any():
-            print(f"| {name} | {look} | | {int((band > 0).sum())} clipped, {int((band == 0).sum())} unclipped columns: "
-                  "nothing to compare | | | |")
-            continue
         corr = err + CLIPPED_SHIFT_GAIN * w2 * band
         print(f"| {name} | {look} | | model on: clipped - unclipped mean | {int((band > 0).sum())} | "
               f"{corr[band > 0].mean() - corr[band == 0].mean():+.3f} (off: {err[band > 0].mean() - base:+.3f}) | | |")
