@@ -42,11 +42,16 @@ log = logging.getLogger(__name__)
 @click.option("--set", "settings", multiple=True, metavar="FIELD=VALUE",
               help="Override any profile field, e.g. --set t4_presets=binary,clean --set frames=9 (repeatable; "
                    "fields in render_service/campaign/profiles.py).")
+@click.option("--only", "only", multiple=True, metavar="CASE_GLOB",
+              help="Run only the cases whose id matches this glob (repeatable), e.g. --only 't6-*-pitch-*' "
+                   "--only 't6-*-roll-*'; the cases whose skyline they reuse run too, the rest stay unfinished "
+                   "(run again without --only to finish them). Case ids are in the folder's cases/.")
 @click.option("--no-progress", is_flag=True, help="No progress bars (logs only).")
 def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str | None, tls_ca_file: Path | None,
              tls_cert: Path | None, tls_key: Path | None, workers: int,
              body: str | None, min_relief_deg: float | None, poses: int | None, acquisitions: int | None,
-             pano_width: int | None, samples: int | None, settings: tuple[str, ...], no_progress: bool) -> None:
+             pano_width: int | None, samples: int | None, settings: tuple[str, ...], only: tuple[str, ...],
+             no_progress: bool) -> None:
     """Run (or resume) the report's test campaign (tables 4-8) end to end from rendered images.
 
     Exit status 0 when the harness ran (bad fixes are results, in results.csv), 1 on bad arguments
@@ -62,7 +67,7 @@ def campaign(dem: str, profile_name: str, seed: int, out: Path, scheduler: str |
                                   samples=samples)
     run_campaign(CampaignOptions(out=out, dem=dem, profile=profile_name, seed=seed, scheduler=scheduler,
                                  workers=workers, body=body, min_relief_deg=min_relief_deg,
-                                 overrides=overrides,
+                                 overrides=overrides, only=only,
                                  progress=not no_progress, security=security))
     click.echo(f"results: {out / 'results.csv'}, {out / 'summary.json'}, {out / 'report.html'}")
 

@@ -77,6 +77,9 @@ class CampaignOptions:
     progress: bool = True
     say: object = None  # callable(str) for the terminal lines; None: print to stdout
     security: object = None  # distributed.security.Security for --scheduler (None: generated / Dask config)
+    #: case-id globs (``fnmatch``, e.g. ``t6-*-pitch-*``): run only the matching cases (and the unfinished cases
+    #: whose skyline they reuse); the others stay unfinished for a later run.  Empty: every case.
+    only: tuple[str, ...] = ()
 
 
 def _say_default(msg: str) -> None:
@@ -229,6 +232,7 @@ def run_campaign(opt: CampaignOptions) -> dict:
     args = json.loads(json.dumps(args, default=_json_default))
     grown = _check_arguments(out, args)
     try:
+        select_cases(planning.plan_cases(profile, profile.n_poses), opt.only)  # a bad --only fails before any work
         from blender_addon.terrain.dem import dem_info, resolve_dem  # noqa: PLC0415
 
         spec = _dem_spec(opt.dem, profile)
@@ -262,13 +266,23 @@ def run_campaign(opt: CampaignOptions) -> dict:
             say("  grown: " + ", ".join(f"{k} {a} -> {b}" for k, (a, b) in grown.items())
                 + " (the finished cases of the first ones are kept)")
         cases = planning.plan_cases(profile, len(poses))
-        harness_errors = _run_cases(client, ctx, cases, poses, truths, opt, say)
+        selected = select_cases(cases, opt.only)
+        if len(selected) < len(cases):
+            say(f"  --only {' '.join(opt.only)}: {len(selected)} of {len(cases)} cases selected (the others are "
+                "left as they are: run again without --only to finish them)")
+        harness_errors = _run_cases(client, ctx, selected, poses, truths, opt, say)
         extra_rows: list[dict] = []
-        if profile.robustness:
+        if profile.robustness and _only_may_match_robustness(opt.only):
             from render_service.campaign.robustness import run_robustness  # noqa: PLC0415
 
             extra_rows, errs = run_robustness(client, ctx, profile, out, opt, say, _render_db)
             harness_errors += errs
+        elif profile.robustness:  # --only names no robustness case: its finished rows are still results
+            from render_service.campaign.tasks import read_row  # noqa: PLC0415
+
+            extra_rows = [r for r in (read_row(ctx, d.name) for d in sorted((out / "cases").glob("r-*")))
+                          if r is not None]
+            say(f"  robustness sets not run (--only): {len(extra_rows)} finished rows kept")
         try:
             stats = client.run(_worker_usage)
             mem_workers_mb = [v[0] for v in stats.values()]
@@ -476,6 +490,37 @@ def _poses(client, opt, profile: Profile, out: Path, site, ctx, say):
     say(f"  {len(accepted)} hidden poses drawn off the grid (true horizon ray-marched at "
         f"{360 / TRUTH_N_AZIMUTH:g} deg)")
     return accepted, el
+
+
+def select_cases(cases: list, only) -> list:
+    """The cases whose id matches one of the globs ``only`` (``fnmatch``, case-sensitive), with the cases whose
+    skyline they reuse (``source``), in plan order; every case when ``only`` is empty.
+
+    Raises InvalidInputError naming the glob and a few case ids when a glob matches no case.
+    """
+    from fnmatch import fnmatchcase  # noqa: PLC0415
+
+    if not only:
+        return list(cases)
+    ids = [c.case_id for c in cases]
+    for g in only:
+        if not any(fnmatchcase(i, g) for i in ids):
+            shown = ", ".join(ids[:6]) + (f", ... ({len(ids)} cases)" if len(ids) > 6 else "")
+            raise InvalidInputError(f"--only {g!r} matches none of this campaign's cases ({shown}); give a glob "
+                                    "over case ids such as 't6-*-pitch-*' or 't4-clean-p0[0-4]'")
+    keep = {i for i in ids if any(fnmatchcase(i, g) for g in only)}
+    by_id = {c.case_id: c for c in cases}
+    for i in list(keep):
+        src = by_id[i].source
+        while src and src not in keep:
+            keep.add(src)
+            src = by_id[src].source
+    return [c for c in cases if c.case_id in keep]
+
+
+def _only_may_match_robustness(only) -> bool:
+    """Whether the ``--only`` globs can match a robustness case id (``r-SET-NNN``); True without globs."""
+    return not only or any(g[:1] in ("r", "*", "?", "[") for g in only)
 
 
 def _progress(client, futures, desc: str, show: bool, *, initial: int = 0, total: int | None = None):

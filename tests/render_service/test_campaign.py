@@ -11,6 +11,7 @@ import csv
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -124,6 +125,37 @@ def test_case_plan_covers_the_tables_and_reuses_existing_sources():
     assert all(c.source in ids for c in cases if c.source)
     with pytest.raises(InvalidInputError, match="t4_presets"):
         planning.plan_cases(get_profile("ci", t4_presets=("clean",), window_presets=("binary",)), 1)
+
+
+def test_only_selects_cases_by_glob_with_the_cases_whose_skyline_they_reuse():
+    """``--only``: the matching cases and, transitively, their sources, in plan order; a glob matching
+    nothing is refused with the case ids it could have matched."""
+    from render_service.campaign.runner import select_cases
+
+    prof = get_profile("report", n_poses=3, n_window_poses=3, n_heading_poses=2, n_acquisitions=3)
+    cases = planning.plan_cases(prof, 3)
+    ids = [c.case_id for c in cases]
+    assert select_cases(cases, ()) == cases
+    got = [c.case_id for c in select_cases(cases, ("t6-*-pitch-*",))]
+    assert got == [i for i in ids if i.startswith("t6-") and "-pitch-" in i] and len(got) == 1
+    # a heading case brings its table-4 source along, nothing else of that pose
+    head = next(i for i in ids if i.startswith("t8-"))
+    src = next(c.source for c in cases if c.case_id == head)
+    assert [c.case_id for c in select_cases(cases, (head,))] == [i for i in ids if i in (head, src)]
+    # two globs: the union, in plan order
+    both = [c.case_id for c in select_cases(cases, ("t6-*-p00", "t6-*-p02"))]
+    assert both == [i for i in ids if i.startswith("t6-") and i.endswith(("-p00", "-p02"))] and len(both) == 2
+    with pytest.raises(InvalidInputError, match=r"--only 't9-\*'.*t4-"):
+        select_cases(cases, ("t9-*",))
+
+
+def test_a_campaign_with_an_only_glob_that_matches_nothing_is_refused_before_any_work(tmp_path):
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "skyloc.cli", "campaign", "--profile", "ci", "--out", str(out),
+                        "--only", "t6-nothing-*", "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1
+    assert "--only 't6-nothing-*' matches none" in r.stderr + r.stdout
+    assert not out.exists()
 
 
 def test_profile_settings_are_typed_and_checked():
@@ -320,9 +352,10 @@ ARGS = ["--profile", "ci", "--seed", "5", "--poses", "2", "--acquisitions", "1",
         *[a for s in SETTINGS for a in ("--set", s)]]
 
 
-def _cli(out: Path, poses: int = 2, **kw) -> subprocess.Popen:
+def _cli(out: Path, poses: int = 2, extra: list[str] | None = None, **kw) -> subprocess.Popen:
     env = dict(os.environ)
     args = [a if a != "2" or ARGS[i - 1] != "--poses" else str(poses) for i, a in enumerate(ARGS)]
+    args += extra or []
     return subprocess.Popen([sys.executable, "-m", "skyloc.cli", "campaign", "--out", str(out), *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **kw)
 
@@ -490,6 +523,34 @@ def test_killed_campaign_resumes_to_the_same_results_without_recomputing(campaig
     drop = set(scoring.TIME_COLUMNS)
     assert [{k: v for k, v in r.items() if k not in drop} for r in a] == \
            [{k: v for k, v in r.items() if k not in drop} for r in b]
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_only_reruns_the_chosen_missing_cases_and_leaves_the_others_missing(campaign_run, tmp_path):
+    """A finished campaign with two rows removed, resumed with ``--only`` naming one of them: that case runs
+    again to the same row, the other stays missing (and out of results.csv), nothing else is recomputed."""
+    ref, _ = campaign_run
+    out = tmp_path / "run"
+    shutil.copytree(ref, out)
+    rows = _rows(ref)
+    acq = next(r["case_id"] for r in rows if r["table"] == "6")
+    win = next(r["case_id"] for r in rows if r["table"] == "7")
+    for cid in (acq, win):
+        (out / "cases" / cid / "row.json").unlink()
+    kept = {f.parent.name: f.stat().st_mtime_ns for f in (out / "cases").glob("*/row.json")}
+    p = _cli(out, extra=["--only", "t6-*"])
+    log, _ = p.communicate(timeout=900)
+    assert p.returncode == 0, log
+    assert "--only t6-*:" in log and "1 to run" in log
+    assert (out / "cases" / acq / "row.json").is_file() and not (out / "cases" / win / "row.json").exists()
+    for cid, mtime in kept.items():
+        assert (out / "cases" / cid / "row.json").stat().st_mtime_ns == mtime
+    drop = set(scoring.TIME_COLUMNS)
+    want = sorted(({k: v for k, v in r.items() if k not in drop} for r in rows if r["case_id"] != win),
+                  key=lambda r: r["case_id"])
+    got = sorted(({k: v for k, v in r.items() if k not in drop} for r in _rows(out)), key=lambda r: r["case_id"])
+    assert got == want and any(r["table"] == "R" for r in got)  # the robustness rows kept, not re-run
 
 
 @pytest.mark.slow
