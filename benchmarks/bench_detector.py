@@ -288,6 +288,22 @@ def _clipped_scene(g, rng: np.random.Generator) -> np.ndarray:
 SPEED_SCENES = ("plain", "slope", "blind", "clipped")
 
 
+def speed_scene_image(scene: str, g) -> np.ndarray:
+    """(H, W, 3) uint8 BGR image of speed scene ``scene`` (one of :data:`SPEED_SCENES`) on geometry ``g``."""
+    from board.synthetic import SkylineFunction, synth_panorama
+
+    if scene not in SPEED_SCENES:
+        raise ValueError(f"unknown speed scene {scene!r}: choose from {', '.join(SPEED_SCENES)}")
+    if scene == "slope":
+        return _slope_scene(g, np.random.default_rng(1))
+    if scene == "blind":
+        return _blind_slope_scene(g, np.random.default_rng(1))
+    if scene == "clipped":
+        return _clipped_scene(g, np.random.default_rng(1))
+    grey = synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1)
+    return np.repeat((np.clip(grey, 0, 1) * 255 + 0.5).astype(np.uint8)[..., None], 3, axis=2)
+
+
 def speed(scene: str = "plain") -> dict:
     """Detector speed and peak memory on a 3600 x 1800 colour panorama read from disk, in a fresh
     child process (peak RSS, VmHWM: the interpreter, numpy/OpenCV, the image and the extraction).
@@ -297,19 +313,9 @@ def speed(scene: str = "plain") -> dict:
     import tempfile
 
     from board.acquisition import PanoramaGeometry, write_panorama
-    from board.synthetic import SkylineFunction, synth_panorama
 
     g = PanoramaGeometry.full_circle(3600, 1800, elevation_top_deg=90.0, elevation_bottom_deg=-90.0)
-    if scene == "slope":
-        img = _slope_scene(g, np.random.default_rng(1))
-    elif scene == "blind":
-        img = _blind_slope_scene(g, np.random.default_rng(1))
-    elif scene == "clipped":
-        img = _clipped_scene(g, np.random.default_rng(1))
-    else:
-        grey = synth_panorama(g, SkylineFunction.random(2026), noise_sigma=0.02, seed=1)
-        img = np.repeat((np.clip(grey, 0, 1) * 255 + 0.5).astype(np.uint8)[..., None], 3, axis=2)
-        del grey
+    img = speed_scene_image(scene, g)
     with tempfile.TemporaryDirectory() as tmp:
         write_panorama(tmp, img, g)
         del img
@@ -339,6 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--presets", default=",".join(PRESETS))
     p.add_argument("--no-speed", action="store_true")
     p.add_argument("--speed-only", action="store_true", help="only the speed scenes (no labels)")
+    p.add_argument("--scenes", default=",".join(SPEED_SCENES),
+                   help=f"comma-separated speed scenes to time (default: all of {', '.join(SPEED_SCENES)})")
     p.add_argument("--cached-only", action="store_true", help="measure the labels already rendered, render none")
     p.add_argument("--other-detector", help="also run this version of board/detect/sky_regions.py (a file)")
     p.add_argument("--upsample", type=float, default=1.0,
@@ -350,8 +358,12 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     for noisy in ("blender_addon", "board", "render_service"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
+    scenes = tuple(x for x in a.scenes.split(",") if x)
+    bad = [x for x in scenes if x not in SPEED_SCENES]
+    if bad:
+        p.error(f"--scenes: unknown speed scene(s) {', '.join(bad)}; choose from {', '.join(SPEED_SCENES)}")
     if a.speed_only:
-        print_speed()
+        print_speed(scenes)
         return 0
     folders = []
     for split in a.split.split(","):
@@ -374,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
         dets["other"] = detector_from_file(a.other_detector)
     print_table(evaluate(folders, dets, verbose=a.verbose, upsample=a.upsample))
     if not a.no_speed:
-        print_speed()
+        print_speed(scenes)
     return 0
 
 

@@ -186,43 +186,65 @@ def shortest_path_l1(node_cost: np.ndarray, *, jump_cost: float, wrap: bool = Fa
             raise InvalidInputError(f"offsets must have shape ({W},), got {off.shape}")
         delta = np.diff(off[cols])
     # forward: the cost D_k of every row of every column (float64, kept for the backtrack).  The L1
-    # transform min_r' D(r') + lam |r - r'| is the smaller of a forward and a backward prefix minimum
+    # transform min_r' D(r') + lam |r - r'| is the smaller of a forward and a backward prefix minimum,
+    # both swept by one accumulate call on a (2, H) buffer: row 0 holds D - lam, row 1 (D + lam) reversed.
+    # The loop is bound by numpy's per-call overhead (H is 30-600 rows), so every step is one call.
     Ds = np.empty((n, H))
     Ds[0] = nodeT[0]
-    vf, vb = np.empty(H), np.empty(H)
+    lam_r = lam[::-1].copy()
+    lam_pm = np.stack([lam, -lam_r])
+    ramp = jump_cost * np.arange(H + 1)        # the transform past the band's end row: + jump_cost per row
+    v = np.empty((2, H))
+    vf, vb_rev = v[0], v[1]
+    vb = vb_rev[::-1]
+    tmp = np.empty(H)
+    dl = delta.tolist()
     for k in range(1, n):
         D = Ds[k - 1]
         np.subtract(D, lam, out=vf)
-        np.minimum.accumulate(vf, out=vf)
-        vf += lam
-        np.add(D, lam, out=vb)
-        np.minimum.accumulate(vb[::-1], out=vb[::-1])
-        vb -= lam
-        np.minimum(vf, vb, out=vf)
-        d = int(delta[k - 1])
+        np.add(D[::-1], lam_r, out=vb_rev)
+        np.minimum.accumulate(v, axis=1, out=v)
+        v += lam_pm
+        d = dl[k - 1]
+        out = Ds[k]
         if d == 0:
-            np.add(vf, nodeT[k], out=Ds[k])
-        else:
-            # image row r + off[k] seen from the band of column k - 1: band row x = r + d; beyond the
+            np.minimum(vf, vb, out=out)
+        elif 0 < d < H:
+            # image row r + off[k] seen from the band of column k - 1: band row r + d; beyond the
             # band the transform grows linearly from its end row
+            np.minimum(vf, vb, out=tmp)
+            out[:H - d] = tmp[d:]
+            np.add(ramp[1:d + 1], tmp[H - 1], out=out[H - d:])
+        elif -H < d < 0:
+            np.minimum(vf, vb, out=tmp)
+            out[-d:] = tmp[:H + d]
+            np.add(ramp[-d:0:-1], tmp[0], out=out[:-d])
+        else:  # the whole column outside the previous band
+            np.minimum(vf, vb, out=tmp)
             x = idx + d
             xc = np.clip(x, 0, H - 1)
-            Ds[k] = vf[xc] + jump_cost * np.abs(x - xc) + nodeT[k]
+            np.add(tmp[xc], jump_cost * np.abs(x - xc), out=out)
+        out += nodeT[k]
     r = int(np.argmin(Ds[-1]))
     cost = float(Ds[-1, r])
     rows = np.empty(n, dtype=np.int64)
     rows[-1] = r
     # backtrack: the row of column k - 1 the transform took for row r of column k (same sums, same ties:
-    # forward the nearest row at or above, backward the nearest at or below, forward on equal costs)
-    for k in range(n - 1, 0, -1):
-        D = Ds[k - 1]
-        x = min(max(r + int(delta[k - 1]), 0), H - 1)
-        f = D[:x + 1] - lam[:x + 1]
-        rf = x - int(np.argmin(f[::-1]))
-        b = D[x:] + lam[x:]
-        rb = x + int(np.argmin(b))
-        r = rb if (b[rb - x] - lam[x]) < (f[rf] + lam[x]) else rf
-        rows[k - 1] = r
+    # forward the nearest row at or above, backward the nearest at or below, forward on equal costs).
+    # D - lam and D + lam are formed a block of columns at a time (one call each, not two per column).
+    lam_l = lam.tolist()
+    block = 256
+    for k1 in range(n - 1, 0, -block):
+        k0 = max(k1 - block, 0)                 # columns k0 .. k1 - 1 are the "k - 1" of this block
+        Dm = Ds[k0:k1] - lam
+        Dp = Ds[k0:k1] + lam
+        for k in range(k1, k0, -1):
+            j = k - 1 - k0
+            x = min(max(r + dl[k - 1], 0), H - 1)
+            rf = x - int(Dm[j, x::-1].argmin())   # the method: np.argmin's wrapper costs as much again
+            rb = x + int(Dp[j, x:].argmin())
+            r = rb if (Dp[j, rb] - lam_l[x]) < (Dm[j, rf] + lam_l[x]) else rf
+            rows[k - 1] = r
     if m:
         rows = rows[m:m + W]
     return PathResult(rows, rows.copy(), cost)

@@ -113,6 +113,27 @@ def test_l1_path_in_a_band_equals_brute_force(seed):
     assert tuple(res.rows_top) == best[1]
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_l1_path_across_every_kind_of_band_shift_equals_brute_force(seed):
+    # the band moves by 0, within its height up and down, and by its height or more up and down (the whole
+    # column outside the previous band): each shift has its own code path in the forward pass
+    rng = np.random.default_rng(200 + seed)
+    H = 4
+    deltas = np.array([0, 2, -3, 5, -6, 1, -1, 4])[rng.permutation(8)][:5]
+    off = np.concatenate([[0], np.cumsum(deltas)])
+    W = off.size
+    node = rng.random((H, W)) if seed % 2 else rng.integers(0, 3, (H, W)).astype(float)   # ties too
+    lam = [0.0, 0.25, 0.5][seed % 3]
+    res = shortest_path_l1(node, jump_cost=lam, offsets=off)
+    best = min((sum(node[r[c], c] for c in range(W))
+                + lam * sum(abs(r[c] + off[c] - r[c - 1] - off[c - 1]) for c in range(1, W)), r)
+               for r in itertools.product(range(H), repeat=W))
+    assert res.cost == pytest.approx(best[0], abs=1e-5)
+    path_cost = (sum(node[res.rows_top[c], c] for c in range(W))
+                 + lam * sum(abs(res.rows_top[c] + off[c] - res.rows_top[c - 1] - off[c - 1]) for c in range(1, W)))
+    assert path_cost == pytest.approx(res.cost, abs=1e-5)   # the backtracked rows are a path of that cost
+
+
 def test_l1_path_in_a_band_around_the_optimum_is_the_optimum():
     rng = np.random.default_rng(3)
     H, W, Hb = 120, 400, 24
