@@ -121,7 +121,8 @@ def view_limits(pano, n_azimuth: int, azimuth_start_deg: float = 0.0) -> tuple[n
 
 
 def extraction_errors(extracted: np.ndarray, truth: np.ndarray, step_deg: float, view: tuple | None = None) -> dict:
-    """Kept arc, its share of the seen arc and the errors of the kept samples against the truth.
+    """Seen arc, kept arc, its share of the seen arc and the errors of the kept samples against the truth
+    (arcs in degrees of azimuth).
 
     view : ``(top, bottom, margin)`` from :func:`view_limits`, or None (every azimuth with a true horizon seen).
     With it, an azimuth is seen where the truth lies ``margin`` inside [bottom, top], hidden where it lies
@@ -141,6 +142,7 @@ def extraction_errors(extracted: np.ndarray, truth: np.ndarray, step_deg: float,
     n_bad = int((err > 1.0).sum() + kept_hidden.sum())
     n_all = int(kept.sum() + kept_hidden.sum())
     return {
+        "seen_deg": float(seen.sum() * step_deg),
         "kept_deg": float(kept.sum() * step_deg),
         "kept_fraction": float(kept.sum() / max(int(seen.sum()), 1)),
         "extract_median_abs_err_deg": float(np.median(err)) if err.size else float("nan"),
@@ -202,7 +204,9 @@ def make_row(ctx, st: CaseOutcome, truth_el: np.ndarray | None) -> dict:
     })
     if st.skyline is not None:
         sky = st.skyline
-        row["seen_deg"] = _r(sky.coverage_deg, 2)
+        # seen_deg: the arc where the true horizon is in the picture (from extraction_errors below; empty for
+        # the rows that reuse another case's skyline).  Before session 32 it held the skyline's coverage
+        # (kept_deg and kept_hidden_deg together): rows of older campaign folders keep that meaning.
         if c["kind"] in ("panorama", "acquisition") and truth_el is not None:
             tp, tr = (0.0, 0.0) if st.levelled else (st.pitch_deg, st.roll_deg)
             truth = true_skyline(truth_el, heading_deg=cd["heading_deg"], pitch_deg=tp, roll_deg=tr,

@@ -245,11 +245,13 @@ def test_a_horizon_out_of_the_picture_is_not_seen_and_a_line_kept_there_is_wrong
     e = scoring.extraction_errors(ext, truth, 1.0, (top, bottom, margin))
     n_seen = 360 - 20 - 20 - 5 - 10                  # the gap (350-359) is hidden too
     assert e["kept_fraction"] == pytest.approx((n_seen - 18) / n_seen)
+    assert e["seen_deg"] == n_seen and e["kept_deg"] == n_seen - 18
     assert e["n_kept_hidden"] == 30 and e["kept_hidden_deg"] == 30.0
     assert e["n_gt1deg"] == 30 and e["n_kept"] == n_seen - 18 + 30
     assert e["extract_median_abs_err_deg"] == pytest.approx(0.02)
     plain = scoring.extraction_errors(ext, truth, 1.0)  # without the view: every azimuth seen, as before
     assert plain["n_kept_hidden"] == 0 and plain["kept_fraction"] == pytest.approx((360 - 10 - 18 - 10) / 360)
+    assert plain["seen_deg"] == 360.0
 
 
 def test_true_skyline_of_a_level_mast_is_the_horizon_shifted_by_the_heading():
@@ -407,6 +409,12 @@ def test_campaign_rows_are_consistent_with_the_manifests(campaign_run):
                 assert json.loads(manifest.read_text())["meta"]["degradation"]["name"] == r["look"]
             assert float(r["pitch_deg"]) == pytest.approx(truth.get("pitch_deg", 0.0), abs=1e-6)
             assert float(r["off_grid_steps"]) >= planning.OFF_GRID_MARGIN - 1e-3
+            if r["kept_deg"] != "":  # the seen arc holds the kept one, and their ratio is the kept fraction
+                assert float(r["kept_deg"]) <= float(r["seen_deg"]) <= 360.0
+                assert float(r["kept_fraction"]) == pytest.approx(float(r["kept_deg"]) / float(r["seen_deg"]),
+                                                                  abs=1e-3)
+        elif r["kind"] in ("window", "heading"):
+            assert r["seen_deg"] == ""
         if r["error_m"] != "":
             e = math.hypot(float(r["fix_x"]) - float(r["true_x"]), float(r["fix_y"]) - float(r["true_y"]))
             assert float(r["error_m"]) == pytest.approx(e, abs=2e-3)
