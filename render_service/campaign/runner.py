@@ -268,8 +268,9 @@ def run_campaign(opt: CampaignOptions) -> dict:
         cases = planning.plan_cases(profile, len(poses))
         selected = select_cases(cases, opt.only)
         if len(selected) < len(cases):
-            say(f"  --only {' '.join(opt.only)}: {len(selected)} of {len(cases)} cases selected (the others are "
-                "left as they are: run again without --only to finish them)")
+            names = ", ".join(c.case_id for c in selected[:12]) + (", ..." if len(selected) > 12 else "")
+            say(f"  --only {' '.join(opt.only)}: {len(selected)} of {len(cases)} cases selected ({names}; the others "
+                "are left as they are: run again without --only to finish them)")
         harness_errors = _run_cases(client, ctx, selected, poses, truths, opt, say)
         extra_rows: list[dict] = []
         if profile.robustness and _only_may_match_robustness(opt.only):

@@ -550,7 +550,7 @@ def test_only_reruns_the_chosen_missing_cases_and_leaves_the_others_missing(camp
     p = _cli(out, extra=["--only", "t6-*"])
     log, _ = p.communicate(timeout=900)
     assert p.returncode == 0, log
-    assert "--only t6-*:" in log and "1 to run" in log
+    assert "--only t6-*:" in log and f"({acq};" in log and "1 to run" in log
     assert (out / "cases" / acq / "row.json").is_file() and not (out / "cases" / win / "row.json").exists()
     for cid, mtime in kept.items():
         assert (out / "cases" / cid / "row.json").stat().st_mtime_ns == mtime
