@@ -64,11 +64,14 @@ class SkyParams:
         terrain towards the horizon sky colour with horizontal extinction ``tau / scale_height``
     scale_height_m : dust scale height, metres (about 11 km on Mars)
     clear : a clear, dust-free dark sky (the 'clean' look)
+    black : an airless sky: black, no sky light (the ground is lit by the sun and by itself only), no dust,
+        no haze; what a camera on the Moon or Europa sees (the opposite polarity to the dressed skies)
     """
 
     dust_tau: float = 0.5
     scale_height_m: float = 11_100.0
     clear: bool = False
+    black: bool = False
 
 
 @dataclass(frozen=True)
@@ -221,6 +224,8 @@ def _validate(obj, where: str) -> None:
     elif isinstance(obj, SkyParams):
         need(0.0 <= obj.dust_tau <= 10.0, f"dust optical depth {obj.dust_tau} must be in [0, 10]")
         need(obj.scale_height_m > 0, "dust scale height must be positive (metres)")
+        need(not obj.black or obj.dust_tau == 0.0, f"a black (airless) sky has no dust: set dust_tau = 0, got "
+                                                   f"{obj.dust_tau}")
     elif isinstance(obj, RockParams):
         need(obj.density_per_m2 >= 0, "rock density must be >= 0 per square metre")
         need(0 < obj.d_min_m < obj.d_max_m, f"rock diameters need 0 < d_min_m < d_max_m, got {obj.d_min_m}, "
@@ -253,7 +258,9 @@ _SUN_REL_MARS = {"mars": 1.0, "earth": 1.52 ** 2, "moon": 1.52 ** 2, "europa": (
 #: The report's noise levels and the clean look (``--preset``); "realistic" is the Mars look, and each
 #: body has its own: "realistic-earth" (clear sky, brighter sun), "realistic-moon" (no atmosphere, dark
 #: regolith, albedo 0.12), "realistic-europa" (no atmosphere, bright ice, albedo 0.6, sunlight 1/12 of Mars').
-#: The airless looks use the clear sky of the dressing (no dust), not a black one.
+#: The airless looks use the clear sky of the dressing (no dust), not a black one (kept so that the lunar
+#: figures of sessions 15-31 stay comparable); "realistic-moon-black" is the Moon's look under its real black
+#: sky (no sky light: shaded slopes as dark as the sky, sunlit ones the brightest thing in view).
 PRESETS: dict[str, Degradation] = {
     "binary": Degradation(name="binary", binary=True, sky=SkyParams(clear=True, dust_tau=0.0)),
     "clean": Degradation(name="clean", sky=SkyParams(clear=True, dust_tau=0.0)),
@@ -265,6 +272,11 @@ PRESETS: dict[str, Degradation] = {
     "realistic-moon": Degradation(
         name="realistic-moon", body="moon", regolith_albedo=0.12, albedo_variation=0.25,
         sun=SunParams(strength=_SUN_REL_MARS["moon"]), sky=SkyParams(clear=True, dust_tau=0.0),
+        rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
+        sensor=_SENSOR),
+    "realistic-moon-black": Degradation(
+        name="realistic-moon-black", body="moon", regolith_albedo=0.12, albedo_variation=0.25,
+        sun=SunParams(strength=_SUN_REL_MARS["moon"]), sky=SkyParams(clear=True, dust_tau=0.0, black=True),
         rocks=RockParams(density_per_m2=0.6, d_min_m=0.04, d_max_m=1.2, exponent=2.5, radius_m=35.0),
         sensor=_SENSOR),
     "realistic-europa": Degradation(

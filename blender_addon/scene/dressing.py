@@ -89,6 +89,8 @@ def sky_radiances(deg: Degradation) -> tuple[np.ndarray, np.ndarray, float]:
     sun_el = deg.sun.elevation_deg
     e0 = SUN_IRRADIANCE * deg.sun.strength * auto_exposure_gain(deg)
     lift = max(math.sin(math.radians(sun_el)) + 0.08, 0.02)
+    if deg.sky.black:  # airless: no sky light at all
+        return np.zeros(3), np.zeros(3), 0.0
     if deg.sky.clear or deg.sky.dust_tau <= 0:
         # a bright, dust-free reference sky: 2-3 times the sunlit regolith, bluish white
         horizon = np.array([0.80, 0.86, 0.95]) * 0.25 * e0 * lift
@@ -105,7 +107,7 @@ def sky_radiances(deg: Degradation) -> tuple[np.ndarray, np.ndarray, float]:
 
 def sun_transmission(deg: Degradation) -> float:
     """Fraction of the sun's light reaching the ground through the dust."""
-    if deg.sky.clear:
+    if deg.sky.clear or deg.sky.black:
         return 1.0
     return math.exp(-deg.sky.dust_tau * airmass(deg.sun.elevation_deg))
 
@@ -167,7 +169,7 @@ def _noise(nt, vector, scale: float, detail: float, seed_offset: float):
 
 def _haze(nt, surface, deg: Degradation, horizon_rgb: np.ndarray):
     """Mix ``surface`` with the horizon sky emission by ``exp(-tau d / H)`` (d: camera distance)."""
-    tau = 0.0 if deg.sky.clear else deg.sky.dust_tau
+    tau = 0.0 if (deg.sky.clear or deg.sky.black) else deg.sky.dust_tau
     if tau <= 0:
         return surface
     cam = nt.nodes.new("ShaderNodeCameraData")

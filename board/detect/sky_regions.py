@@ -100,6 +100,9 @@ class DetectorParams:
                                             # least for the "sky coloured like the ground" check to run
     sky_colour_ramp: tuple[float, float] = (0.25, 0.5)  # a column's sky window this share of the way from the
                                             # ground's colour to the view's sky colour: confidence 0 -> 1
+    colour_min_grey: float = 0.05       # a sky window darker than this (grey, 0-1) has no colour to measure (an
+                                        # airless black sky, a deep shadow: log(blue / red) of sensor noise): the
+                                        # colour check leaves its column alone and it does not set the sky's colour
     colour_second_pass_fraction: float = 0.03   # this share of the columns with a ground-coloured "sky": detect
                                                 # again from classes that start from the pixels' colour
     colour_second_pass_masked: float = 0.05     # ... also when the first pass masks this share of the seen columns
@@ -455,7 +458,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks)
         colour = None
         if chroma is not None:
-            colour = _sky_colour_unlike_ground(chroma, seen, b, P)
+            colour = _sky_colour_unlike_ground(chroma, seen, b, P, grey)
             np.minimum(conf, colour[0], out=conf)
             np.minimum(context, colour[0], out=context)
         return y, conf, context, colour
@@ -1214,8 +1217,8 @@ def _step_above_limits(steps: list[tuple[np.ndarray, np.ndarray]], masked: np.nd
     return lim
 
 
-def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
-                              ) -> tuple[np.ndarray, float, float]:
+def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams,
+                              grey: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
     """Per column, 1 where the window above the line has the sky's colour, 0 where it has the ground's.
 
     Where near slopes fill the top of a view, there is no sky in those columns: the per-sector classes
@@ -1226,8 +1229,10 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     the view sets it.  A column whose "sky" window is less than ``P.sky_colour_ramp[0]`` of the way from
     the ground's colour to the sky's gets 0, more than ``[1]`` of the way 1.  Views whose sky and ground
     differ by less than ``P.sky_colour_min_contrast`` (grey images, a dusty sky the regolith's colour)
-    are not checked (all 1).  Returns the per-column factor, that sky-ground colour offset and the ground's
-    colour (log blue / red).
+    are not checked (all 1).  With ``grey`` (the image's grey, 0-1), a "sky" window darker than
+    ``P.colour_min_grey`` has no colour to measure (a black airless sky: the log ratio of sensor noise) and
+    is left alone (1), nor does it set the view's sky colour.  Returns the per-column factor, that sky-ground
+    colour offset and the ground's colour (log blue / red).
     """
     W = b.size
     R, m = P.region_window_px, P.contrast_window_px
@@ -1236,6 +1241,9 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     gr_c, n_g = _window_mean(chroma, sf, b, m, R)
     ok_g = n_g >= P.min_seen_rows
     ok_s = n_s >= P.min_seen_rows
+    if grey is not None and P.colour_min_grey > 0:
+        sky_grey, _ = _window_mean(grey, sf, b, -R, -m)
+        ok_s &= sky_grey >= P.colour_min_grey
     if ok_g.sum() < 10 or ok_s.sum() < 10:
         return np.ones(W), 0.0, 0.0
     g_ref = float(np.median(gr_c[ok_g]))

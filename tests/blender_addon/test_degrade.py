@@ -261,3 +261,13 @@ def test_a_look_names_a_known_body():
     assert Degradation.from_dict({"body": "Moon"}).body == "moon"
     with pytest.raises(InvalidInputError, match="body: expected one of earth, mars, moon, europa"):
         Degradation.from_dict({"body": "pluto"})
+
+
+def test_the_black_sky_is_airless_and_the_moons_own():
+    from blender_addon.core.degrade import Degradation, check_look_body, look_on_body
+
+    black = look_on_body("realistic-moon-black", "moon")
+    assert black.sky.black and black.sky.dust_tau == 0.0 and check_look_body(black, "moon") is None
+    assert look_on_body("realistic", "moon").name == "realistic-moon"      # the Moon's default look is unchanged
+    with pytest.raises(InvalidInputError, match="black .*no dust"):
+        Degradation.from_dict({"sky": {"black": True, "dust_tau": 0.5}})

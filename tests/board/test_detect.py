@@ -632,3 +632,27 @@ def test_a_grey_view_with_masked_columns_does_not_start_the_colour_second_pass(p
     plain = np.arange(W) >= W // 3 + 20
     assert det.valid[plain].mean() >= 0.95 and not det.valid[: W // 3 - 20].any()
     assert np.max(np.abs(det.line_row - rows)[det.valid]) <= 1.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_black_airless_sky_has_no_colour_to_veto_columns_with(params, seed):
+    # the Moon's sky: black (sensor noise around 1.5 DN) over brown regolith from sunlit (200 DN) to dim (25 DN).
+    # log(blue / red) of the black sky is the ratio of noise: the "sky coloured like the ground" check, were it
+    # to read it, masks the columns whose noise happens to lean red (1-2 % here, a quarter of a rendered lunar
+    # view with shaded regolith); a black window has no colour, and every column is kept
+    rng = np.random.default_rng(seed)
+    az, el = GEOM.azimuths_deg(), GEOM.elevations_deg()
+    f = SkylineFunction.random(100 + seed)
+    ground = el[:, None] < f(az)[None, :]
+    level = 25 + 175 * (0.5 + 0.5 * np.cos(np.radians(az - rng.uniform(0, 360))))
+    texture = 1 + 0.15 * rng.standard_normal((GEOM.height, GEOM.width))
+    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
+    img[ground] = (level[None, :, None] * texture[..., None] * np.array([0.62, 0.8, 1.0]))[ground]   # BGR: brown
+    img += rng.normal(1.5, 1.5, img.shape)
+    img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    det = detect_skyline(img, wrap=True, params=params)
+    assert det.diagnostics["sky_coloured_like_ground_fraction"] == 0.0
+    assert det.valid.mean() >= 0.995
+    err = np.abs(det.line_row - _truth_rows(f))[det.valid]
+    assert np.median(err) <= 0.35                            # pixels (a hard edge: +-0.5 px of quantisation)
+    assert err.max() * GEOM.elevation_step_deg <= 1.0        # no kept sample 1 degree off (6.7 px)

@@ -91,6 +91,18 @@ def test_dark_lunar_sky(site):
     _check(*_render(site, "lunar", _case("clean", sun_el=20.0), dark_sky=True), min_kept=0.85)
 
 
+def test_black_sky_of_the_moons_own_look(site):
+    # realistic-moon-black: no sky light, the sky black to the sensor's noise and the regolith lit by the sun and
+    # by itself.  A black window has no colour: the "sky coloured like the ground" check leaves it alone (before
+    # session 32 it masked 30 % of this view's lit horizon on the log(blue / red) of noise)
+    res, truth, view = _render(site, "black", _case("realistic-moon-black", sun_az_rel=20.0, sun_el=35.0))
+    pano = load_panorama(site[1] / "black" / "pano")
+    el = pano.geometry.elevations_deg()
+    assert np.mean(pano.image[el > 45.0]) < 4.0                  # a black sky (8-bit levels)
+    assert res.diagnostics["sky_coloured_like_ground_fraction"] == 0.0
+    _check(res, truth, view, min_kept=0.88)
+
+
 def test_bright_sky_as_grey_as_sunlit_ground(site):
     # the clean look: a bright blue-white sky, the regolith in front of it about as bright in grey
     _check(*_render(site, "bright", _case("clean", sun_el=55.0)), min_kept=0.9)
