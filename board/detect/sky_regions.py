@@ -103,6 +103,12 @@ class DetectorParams:
     colour_min_grey: float = 0.05       # a sky window darker than this (grey, 0-1) has no colour to measure (an
                                         # airless black sky, a deep shadow: log(blue / red) of sensor noise): the
                                         # colour check leaves its column alone and it does not set the sky's colour
+    black_sky_grey: float = 0.05        # a view whose sky (seen rows well above the line) is darker than this (grey,
+                                        # 0-1) has a black, airless sky: no gradient, haze or glow of its own
+    faint_ground_rows: tuple[int, int] = (3, 13)   # under a black sky, the rows [3, 13) above the line ...
+    faint_ground_columns: int = 3       # ... averaged over this many columns each side ...
+    faint_ground_z: tuple[float, float] = (6.0, 10.0)  # ... brighter than the sky by this many noise sigmas of that
+                                        # mean: confidence 1 -> 0 (a shaded far ridge above a lit near edge)
     colour_second_pass_fraction: float = 0.03   # this share of the columns with a ground-coloured "sky": detect
                                                 # again from classes that start from the pixels' colour
     colour_second_pass_masked: float = 0.05     # ... also when the first pass masks this share of the seen columns
@@ -455,7 +461,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         """Sub-pixel line, confidence and wide-window confidence of the path ``b``, and for colour images
         :func:`_sky_colour_unlike_ground`'s factor, sky-ground colour offset and ground colour."""
         y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
-        conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks)
+        conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap)
         colour = None
         if chroma is not None:
             colour = _sky_colour_unlike_ground(chroma, seen, b, P, grey)
@@ -883,7 +889,7 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
     def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None,
                             checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
         y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
-        conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks)
+        conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap)
         np.minimum(conf, conf_c, out=conf)
         return y, conf
 
@@ -993,9 +999,56 @@ def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorPa
     return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
+def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool
+                        ) -> np.ndarray:
+    """Per column 1, or down to 0 where, under a black (airless) sky, the rows just above the line are brighter
+    than the sky by more than its noise: a shaded far ridge, lit only by the ground around it (a few grey
+    levels over the sky's black), rising behind a sunlit near edge that the line follows.  Its step is far
+    below the classes' contrast (the step-above check's 0.15) but, averaged over ``P.faint_ground_rows`` and
+    ``P.faint_ground_columns`` each side, many noise sigmas of a sky that has no gradient, haze or glow.
+
+    The view's sky: the median and spread (1.4826 MAD, floored at half a level of 8 bits) of the seen pixels
+    more than 20 rows above the line; views whose sky is not black (``P.black_sky_grey``) are not checked.
+    """
+    H, W = grey.shape
+    ones = np.ones(W)
+    m, k = P.faint_ground_rows
+    if k <= m or P.black_sky_grey <= 0:
+        return ones
+    # (every 4th row and column: the sky's level and spread from a few thousand pixels, not millions)
+    far = seen[::4, ::4] & (np.arange(0, H, 4)[:, None] < (b[None, ::4] - 20))
+    vals = grey[::4, ::4][far]
+    if vals.size < 500:
+        return ones
+    if vals.size > 20_000:
+        vals = vals[:: vals.size // 20_000]
+    sky = _median(vals)
+    if not sky < P.black_sky_grey:
+        return ones
+    sd = max(1.4826 * _median(np.abs(vals - sky)), 0.5 / 255.0)
+    band, nb = _window_mean(grey, seen.astype(np.float32), b, -k, -m)
+    w = (nb >= 0.5 * (k - m)).astype(np.float64)
+    excess = np.where(w > 0, np.nan_to_num(band - sky), 0.0) * nb
+    h = max(int(P.faint_ground_columns), 0)
+    box = np.ones(2 * h + 1)
+    if wrap and W > 2 * h:
+        ext = lambda a: np.concatenate([a[-h:], a, a[:h]]) if h else a  # noqa: E731
+        num = np.convolve(ext(excess * w), box, "valid")
+        den = np.convolve(ext(nb * w), box, "valid")
+    else:
+        num = np.convolve(excess * w, box, "same")
+        den = np.convolve(nb * w, box, "same")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = (num / den) / (sd / np.sqrt(den))
+    z = np.where(den > 0, z, 0.0)
+    z0, z1 = P.faint_ground_z
+    return 1.0 - np.clip((z - z0) / (z1 - z0), 0.0, 1.0)
+
+
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
                 sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None,
-                on_step: np.ndarray | None = None, checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                on_step: np.ndarray | None = None, checks: dict | None = None, wrap: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring) and the
     same without the step-contrast and seen-rows checks: the checks whose windows look beyond the step
     (region consistency, saturation and glare, a step above the line).
@@ -1055,14 +1108,15 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
         # while its colour is plainly the ground's
         steps.append(_step_above(colour_proj, seen, b, P))
     c_above = np.minimum.reduce([c for c, _ in steps])
+    c_faint = _faint_ground_above(grey, seen, b, P, wrap)
     if checks is not None:
         checks.update(region=np.nan_to_num(c_region, nan=0.0), above=np.nan_to_num(c_above, nan=0.0),
                       above_steps=steps)
-    context = np.nan_to_num(np.minimum.reduce([c_region, c_sat, c_above]), nan=0.0)
-    conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above])
+    context = np.nan_to_num(np.minimum.reduce([c_region, c_sat, c_above, c_faint]), nan=0.0)
+    conf = np.minimum.reduce([c_contrast, c_region, c_sat, c_seen, c_above, c_faint])
     log.debug("confidence checks (fraction of columns passing): contrast %.3f region %.3f saturation %.3f seen %.3f "
-              "above %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5), np.mean(c_sat >= 0.5),
-              np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5))
+              "above %.3f faint ground %.3f", np.mean(c_contrast >= 0.5), np.mean(c_region >= 0.5),
+              np.mean(c_sat >= 0.5), np.mean(c_seen >= 0.5), np.mean(c_above >= 0.5), np.mean(c_faint >= 0.5))
     return np.nan_to_num(conf, nan=0.0), context
 
 

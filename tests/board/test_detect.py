@@ -656,3 +656,35 @@ def test_a_black_airless_sky_has_no_colour_to_veto_columns_with(params, seed):
     err = np.abs(det.line_row - _truth_rows(f))[det.valid]
     assert np.median(err) <= 0.35                            # pixels (a hard edge: +-0.5 px of quantisation)
     assert err.max() * GEOM.elevation_step_deg <= 1.0        # no kept sample 1 degree off (6.7 px)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_shaded_far_ridge_over_a_lit_near_edge_under_a_black_sky_is_not_kept_as_the_edge(params, seed):
+    # the Moon: a sunlit near floor (140 DN) whose edge is the skyline, except over 120 deg of azimuth where a far
+    # ridge rises up to 6 deg behind it, in shade: lit only by the ground around it, 4 DN over a black sky of
+    # 1.5 +- 1.5 DN.  Its step is a few hundredths of the classes' contrast and the line follows the lit edge
+    # under it; averaged over 10 rows and 7 columns it is 6-12 noise sigmas of a sky with no gradient of its own
+    # (DetectorParams.faint_ground_*): those columns are masked, the lit edge elsewhere is kept
+    rng = np.random.default_rng(seed)
+    az, el = GEOM.azimuths_deg(), GEOM.elevations_deg()
+    floor = 2.0 + 0.8 * np.sin(np.radians(2 * az + 40 * seed))
+    c0 = rng.uniform(-150, 90)
+    inside = (az > c0) & (az < c0 + 120)
+    ridge = np.where(inside, floor + 6.0 * np.sin(np.pi * np.clip((az - c0) / 120.0, 0, 1)), floor)
+    lit = el[:, None] < floor[None, :]
+    shaded = (el[:, None] < ridge[None, :]) & ~lit
+    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
+    brown = np.array([0.62, 0.8, 1.0])                                     # BGR
+    img[lit] = (140 * (1 + 0.1 * rng.standard_normal(lit.sum())))[:, None] * brown
+    img[shaded] = (4.0 * (1 + 0.5 * rng.standard_normal(shaded.sum())))[:, None] * brown
+    img += rng.normal(1.5, 1.5, img.shape)
+    img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    det = detect_skyline(img, wrap=True, params=params)
+    err_deg = np.abs(det.line_row - GEOM.row_of_el(np.maximum(floor, ridge))) * GEOM.elevation_step_deg
+    under = ridge > floor + 0.3
+    assert det.valid[~under].mean() >= 0.97                  # the lit edge where it is the skyline
+    assert np.sum(err_deg[det.valid] > 1.0) <= 0.01 * det.valid.sum()
+    # the same view without the check keeps the lit edge under the ridge (the test can fail)
+    off = detect_skyline(img, wrap=True, params=replace(params, black_sky_grey=0.0))
+    err_off = np.abs(off.line_row - GEOM.row_of_el(np.maximum(floor, ridge))) * GEOM.elevation_step_deg
+    assert np.sum((err_off > 1.0) & off.valid) > 0.1 * under.sum()
