@@ -100,7 +100,7 @@ class DetectorParams:
                                             # least for the "sky coloured like the ground" check to run
     sky_colour_ramp: tuple[float, float] = (0.25, 0.5)  # a column's sky window this share of the way from the
                                             # ground's colour to the view's sky colour: confidence 0 -> 1
-    colour_min_grey: float = 0.05       # a sky window darker than this (grey, 0-1) has no colour to measure (an
+    colour_min_grey: float = 0.05       # in a black-sky view, a sky window darker than this (grey, 0-1) has no colour (an
                                         # airless black sky, a deep shadow: log(blue / red) of sensor noise): the
                                         # colour check leaves its column alone and it does not set the sky's colour
     black_sky_grey: float = 0.05        # a view whose sky (seen rows well above the line) is darker than this (grey,
@@ -1283,9 +1283,10 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     the view sets it.  A column whose "sky" window is less than ``P.sky_colour_ramp[0]`` of the way from
     the ground's colour to the sky's gets 0, more than ``[1]`` of the way 1.  Views whose sky and ground
     differ by less than ``P.sky_colour_min_contrast`` (grey images, a dusty sky the regolith's colour)
-    are not checked (all 1).  With ``grey`` (the image's grey, 0-1), a "sky" window darker than
-    ``P.colour_min_grey`` has no colour to measure (a black airless sky: the log ratio of sensor noise) and
-    is left alone (1), nor does it set the view's sky colour.  Returns the per-column factor, that sky-ground
+    are not checked (all 1).  With ``grey`` (the image's grey, 0-1), in a view whose sky is black (the median
+    "sky" window darker than ``P.black_sky_grey``), a "sky" window darker than ``P.colour_min_grey`` has no
+    colour to measure (the log ratio of sensor noise) and is left alone (1), nor does it set the view's sky
+    colour; under a bright sky every window is checked as before.  Returns the per-column factor, that sky-ground
     colour offset and the ground's colour (log blue / red).
     """
     W = b.size
@@ -1295,9 +1296,12 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     gr_c, n_g = _window_mean(chroma, sf, b, m, R)
     ok_g = n_g >= P.min_seen_rows
     ok_s = n_s >= P.min_seen_rows
-    if grey is not None and P.colour_min_grey > 0:
+    if grey is not None and P.colour_min_grey > 0 and ok_s.any():
         sky_grey, _ = _window_mean(grey, sf, b, -R, -m)
-        ok_s &= sky_grey >= P.colour_min_grey
+        # only in a view whose sky is black: under a bright sky a dark "sky" window is a shaded slope, and its
+        # colour (even the ratio of noise) is all the check has to go on there, as before
+        if np.median(sky_grey[ok_s]) < P.black_sky_grey:
+            ok_s &= sky_grey >= P.colour_min_grey
     if ok_g.sum() < 10 or ok_s.sum() < 10:
         return np.ones(W), 0.0, 0.0
     g_ref = float(np.median(gr_c[ok_g]))
