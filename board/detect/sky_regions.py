@@ -100,9 +100,9 @@ class DetectorParams:
                                             # least for the "sky coloured like the ground" check to run
     sky_colour_ramp: tuple[float, float] = (0.25, 0.5)  # a column's sky window this share of the way from the
                                             # ground's colour to the view's sky colour: confidence 0 -> 1
-    colour_min_grey: float = 0.05       # in a black-sky view, a sky window darker than this (grey, 0-1) has no colour (an
-                                        # airless black sky, a deep shadow: log(blue / red) of sensor noise): the
-                                        # colour check leaves its column alone and it does not set the sky's colour
+    colour_min_grey: float = 0.05       # in a black-sky view (black_sky_grey), a sky window darker than this (grey,
+                                        # 0-1) has no colour (log(blue / red) of sensor noise): the colour check
+                                        # leaves its column alone and it does not set the sky's colour
     black_sky_grey: float = 0.05        # a view whose sky (seen rows well above the line) is darker than this (grey,
                                         # 0-1) has a black, airless sky: no gradient, haze or glow of its own
     faint_ground_rows: tuple[int, int] = (3, 13)   # under a black sky, the rows [3, 13) above the line ...
