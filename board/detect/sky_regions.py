@@ -1007,7 +1007,7 @@ def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: De
     below the classes' contrast (the step-above check's 0.15) but, averaged over ``P.faint_ground_rows`` and
     ``P.faint_ground_columns`` each side, many noise sigmas of a sky that has no gradient, haze or glow.
 
-    The view's sky: the median and spread (1.4826 MAD, floored at half a level of 8 bits) of the seen pixels
+    The view's sky: :func:`_fit` (median, 1.4826 MAD floored at half a level of 8 bits) of the seen pixels
     more than 20 rows above the line; views whose sky is not black (``P.black_sky_grey``) are not checked.
     """
     H, W = grey.shape
@@ -1020,24 +1020,20 @@ def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: De
     vals = grey[::4, ::4][far]
     if vals.size < 500:
         return ones
-    if vals.size > 20_000:
-        vals = vals[:: vals.size // 20_000]
-    sky = _median(vals)
+    sky, sd = _fit(vals, 0.5 / 255.0)
     if not sky < P.black_sky_grey:
         return ones
-    sd = max(1.4826 * _median(np.abs(vals - sky)), 0.5 / 255.0)
     band, nb = _window_mean(grey, seen.astype(np.float32), b, -k, -m)
-    w = (nb >= 0.5 * (k - m)).astype(np.float64)
-    excess = np.where(w > 0, np.nan_to_num(band - sky), 0.0) * nb
+    weight = nb * (nb >= 0.5 * (k - m))                  # seen rows of a column's band (none: too few seen)
     h = max(int(P.faint_ground_columns), 0)
     box = np.ones(2 * h + 1)
     if wrap and W > 2 * h:
         ext = lambda a: np.concatenate([a[-h:], a, a[:h]]) if h else a  # noqa: E731
-        num = np.convolve(ext(excess * w), box, "valid")
-        den = np.convolve(ext(nb * w), box, "valid")
+        num = np.convolve(ext(np.nan_to_num(band - sky) * weight), box, "valid")
+        den = np.convolve(ext(weight), box, "valid")
     else:
-        num = np.convolve(excess * w, box, "same")
-        den = np.convolve(nb * w, box, "same")
+        num = np.convolve(np.nan_to_num(band - sky) * weight, box, "same")
+        den = np.convolve(weight, box, "same")
     with np.errstate(invalid="ignore", divide="ignore"):
         z = (num / den) / (sd / np.sqrt(den))
     z = np.where(den > 0, z, 0.0)

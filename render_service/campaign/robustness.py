@@ -114,13 +114,11 @@ def run_robustness(client, ctx, profile, out: Path, opt, say, render_db) -> tupl
                     "preset": f"{name}/{e['degradation']}", "pose": i, "mode": "lost", "source": "",
                     "prior_offset_m": 0.0, "pitch_deg": 0.0, "roll_deg": 0.0, "extra": {"set": name}}
             cases.append((case, str(root / name / e["dir"]), dbs[site_name]))
-    from fnmatch import fnmatchcase  # noqa: PLC0415
-
+    from render_service.campaign.runner import matches_only  # noqa: PLC0415
     from render_service.campaign.tasks import read_row  # noqa: PLC0415
 
     only = tuple(getattr(opt, "only", ()) or ())
-    pending = [c for c in cases if read_row(ctx, c[0]["case_id"]) is None
-               and (not only or any(fnmatchcase(c[0]["case_id"], g) for g in only))]
+    pending = [c for c in cases if read_row(ctx, c[0]["case_id"]) is None and matches_only(c[0]["case_id"], only)]
     fut_cases = [client.submit(robustness_case_task, ctx, c, a, d, pure=False) for c, a, d in pending]
     for (c, _, _), f in zip(pending, fut_cases):
         try:

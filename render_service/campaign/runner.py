@@ -509,7 +509,7 @@ def select_cases(cases: list, only) -> list:
             shown = ", ".join(ids[:6]) + (f", ... ({len(ids)} cases)" if len(ids) > 6 else "")
             raise InvalidInputError(f"--only {g!r} matches none of this campaign's cases ({shown}); give a glob "
                                     "over case ids such as 't6-*-pitch-*' or 't4-clean-p0[0-4]'")
-    keep = {i for i in ids if any(fnmatchcase(i, g) for g in only)}
+    keep = {i for i in ids if matches_only(i, only)}
     by_id = {c.case_id: c for c in cases}
     for i in list(keep):
         src = by_id[i].source
@@ -517,6 +517,13 @@ def select_cases(cases: list, only) -> list:
             keep.add(src)
             src = by_id[src].source
     return [c for c in cases if c.case_id in keep]
+
+
+def matches_only(case_id: str, only) -> bool:
+    """Whether ``case_id`` is selected by the ``--only`` globs ``only`` (``fnmatch``, case-sensitive); True without."""
+    from fnmatch import fnmatchcase  # noqa: PLC0415
+
+    return not only or any(fnmatchcase(case_id, g) for g in only)
 
 
 def _only_may_match_robustness(only) -> bool:
