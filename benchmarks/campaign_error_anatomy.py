@@ -15,7 +15,15 @@ extracted minus the true skyline, degrees, on the database's azimuths in the mas
   work: a smooth error is a bias (light, optics, estimator), a rough one is noise (the renders' Monte
   Carlo noise, the sensor).
 
+* **By distance** (``--by-distance``): the extraction error by the distance of the true horizon (ray-marched
+  again from the campaign's terrain: where along each azimuth the horizon is), and the truth plus the error
+  of the near horizon only (closer than ``--near-m``, default 8 km), of the far horizon only, and of the
+  case's median error only (a constant offset), each located alone.  A near horizon moves with the rover and
+  fixes its position; a far one (tens of km) barely moves, and its error reaches the position through the
+  heading and the tilt, more so on a partial arc.
+
     python -m benchmarks.campaign_error_anatomy RUN rows.json [--looks clean,realistic] [--width 10]
+        [--by-distance [--near-m 8000]]
 """
 from __future__ import annotations
 
@@ -96,12 +104,116 @@ def split_rows(run: Path, rows: list[dict], width_deg: float) -> list[dict]:
     return out
 
 
+#: distance bands of the extraction error table (metres)
+DISTANCE_BANDS_M = (0.0, 2_000.0, 8_000.0, 32_000.0, math.inf)
+
+
+def mast_frame_values(az_deg: np.ndarray, el_deg: np.ndarray, values: np.ndarray, *, heading_deg: float,
+                      pitch_deg: float = 0.0, roll_deg: float = 0.0, n: int = 360) -> np.ndarray:
+    """A per-direction quantity of an ENU horizon (``values`` at the fine ENU azimuths ``az_deg`` and horizon
+    elevations ``el_deg``, degrees) on ``n`` mast-frame azimuths from 0: each takes the value of the horizon
+    direction nearest to it in the mast frame (the rotation of :func:`board.match.synthetic.observe`, which
+    gives the true skyline itself; nearest, not interpolated: a distance jumps where one ridge hides another)."""
+    from board.conventions import azimuth_grid_deg, enu_from_az_el_deg, rotation_enu_from_camera
+    from board.pose.sphere import rel_az_el_from_body
+
+    v = enu_from_az_el_deg(az_deg, el_deg) @ rotation_enu_from_camera(heading_deg, pitch_deg, roll_deg)
+    th, _ = rel_az_el_from_body(v)
+    th = np.mod(th, 360.0)
+    order = np.argsort(th)
+    th, vals = th[order], np.asarray(values)[order]
+    q = azimuth_grid_deg(n, 0.0)
+    i = np.searchsorted(th, q) % th.size
+    j = (i - 1) % th.size
+    di = np.abs((th[i] - q + 180.0) % 360.0 - 180.0)
+    dj = np.abs((th[j] - q + 180.0) % 360.0 - 180.0)
+    return np.where(di <= dj, vals[i], vals[j])
+
+
+def horizon_distances(run: Path, rows: list[dict]) -> dict[str, np.ndarray]:
+    """Per case id, the true horizon's distance (metres) on the case's mast-frame azimuths (``err_deg``'s
+    grid), ray-marched again from the campaign's terrain (``terrain/truth``) at each pose."""
+    from board.conventions import body_from_name
+    from render_service.campaign.tasks import TRUTH_N_AZIMUTH, truth_task
+
+    args = json.loads((run / "campaign.json").read_text())["arguments"]
+    body = args.get("body") or json.loads((run / "summary.json").read_text())["campaign"]["body"]
+    height = float(args["profile"]["camera_height_m"])
+    poses = {int(p["index"]): p for p in json.loads((run / "poses.json").read_text())["accepted"]}
+    wanted = sorted({int(r["pose"]) for r in rows})
+    rays = truth_task(str(run / "terrain" / "truth"), [(poses[i]["x"], poses[i]["y"]) for i in wanted], height,
+                      body_from_name(body).radius_m)
+    horizon = dict(zip(wanted, rays))
+    az = np.arange(TRUTH_N_AZIMUTH) * 360.0 / TRUTH_N_AZIMUTH
+    out = {}
+    for r in rows:
+        el, dist = horizon[int(r["pose"])]
+        _, case = _truth_for(run, r, len(r["err_deg"]))
+        out[r["case_id"]] = mast_frame_values(az, el.astype(np.float64), dist.astype(np.float64),
+                                              heading_deg=float(case["true_heading_deg"]),
+                                              pitch_deg=float(r.get("pitch_deg") or 0.0),
+                                              roll_deg=float(r.get("roll_deg") or 0.0), n=len(r["err_deg"]))
+    return out
+
+
+def distance_table(rows: list[dict], dists: dict[str, np.ndarray],
+                   bands: tuple[float, ...] = DISTANCE_BANDS_M) -> list[dict]:
+    """Kept samples' extraction error per band of horizon distance: count, median (deg, signed), spread
+    (median absolute deviation about it, deg) and the shares more than 0.05 and 0.1 deg off."""
+    e = np.concatenate([np.asarray(r["err_deg"], dtype=np.float64) for r in rows])
+    d = np.concatenate([dists[r["case_id"]] for r in rows])
+    ok = np.isfinite(e) & np.isfinite(d)
+    e, d = e[ok], d[ok]
+    out = []
+    for lo, hi in zip(bands[:-1], bands[1:]):
+        m = (d >= lo) & (d < hi)
+        if not m.any():
+            continue
+        em = e[m]
+        med = float(np.median(em))
+        out.append({"from_m": lo, "to_m": hi, "samples": int(m.sum()), "median_deg": med,
+                    "mad_deg": float(np.median(np.abs(em - med))), "over_0_05": float(np.mean(np.abs(em) > 0.05)),
+                    "over_0_1": float(np.mean(np.abs(em) > 0.1))})
+    return out
+
+
+def split_by_distance(run: Path, rows: list[dict], dists: dict[str, np.ndarray], near_m: float) -> list[dict]:
+    """Per case: the position error (m) of the truth on the kept arc, plus the error of the near horizon only
+    (closer than ``near_m``), of the far one only, and of the case's median error only (a constant offset)."""
+    from board.locate import locate
+    from board.locate.truth import Truth, compare_with_truth
+    from board.skydb import SkyDB
+    from board.skyline import Skyline
+
+    db = SkyDB.open(run / "db.zarr")
+    out = []
+    for r in rows:
+        e = np.asarray(r["err_deg"], dtype=np.float64)
+        step = 360.0 / e.size
+        truth, case = _truth_for(run, r, e.size)
+        ok = np.isfinite(e)
+        e0 = np.where(ok, e, 0.0)
+        near = dists[r["case_id"]] < near_m
+        t = Truth(float(case["true_x"]), float(case["true_y"]), float(case["true_heading_deg"]))
+        res = {"case_id": r["case_id"], "image": float(r["error_m"]), "heading_image": float(r["heading_error_deg"])}
+        for name, q in (("truth", truth), ("near", truth + np.where(near, e0, 0.0)),
+                        ("far", truth + np.where(near, 0.0, e0)), ("offset", truth + float(np.median(e[ok])))):
+            fix = locate(db, Skyline(np.where(ok, q, np.nan), 0.0, step), mode="lost")
+            c = compare_with_truth(fix, t)
+            res[name], res["heading_" + name] = c.error_m, abs(c.heading_error_deg)
+        out.append(res)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path, help="finished campaign folder")
     ap.add_argument("rows", type=Path, help="rows of benchmarks.campaign_reextract RUN --out rows.json")
     ap.add_argument("--looks", default="clean,realistic", help="comma-separated looks (default clean,realistic)")
     ap.add_argument("--width", type=float, default=10.0, help="low-pass sigma in azimuth, degrees (default 10)")
+    ap.add_argument("--by-distance", action="store_true",
+                    help="also the error by the true horizon's distance and the near / far / offset parts located")
+    ap.add_argument("--near-m", type=float, default=8000.0, help="--by-distance: near horizon limit, metres (default 8000)")
     a = ap.parse_args(argv)
     if not (a.run / "db.zarr").exists() or not a.rows.is_file():
         print(f"need a finished campaign folder ({a.run}) and a rows file ({a.rows})", file=sys.stderr)
@@ -121,6 +233,22 @@ def main(argv: list[str] | None = None) -> int:
         for k in ("truth", "smooth", "rough", "image"):
             v = np.array([s[k] for s in split])
             print(f"| {k} | {np.median(v):.2f} | {v.mean():.2f} | {np.sum(v <= 2.5)} of {v.size} |")
+        if a.by_distance:
+            dists = horizon_distances(a.run, rows)
+            print("| true horizon distance | kept samples | median error (deg) | spread, MAD (deg) | > 0.05 deg | > 0.1 deg |")
+            print("| --- | ---: | ---: | ---: | ---: | ---: |")
+            for b in distance_table(rows, dists):
+                hi = "" if math.isinf(b["to_m"]) else f"{b['to_m'] / 1000:g}"
+                print(f"| {b['from_m'] / 1000:g}-{hi} km | {b['samples']} | {b['median_deg']:+.4f} | {b['mad_deg']:.4f} | "
+                      f"{b['over_0_05']:.1%} | {b['over_0_1']:.1%} |")
+            parts = split_by_distance(a.run, rows, dists, a.near_m)
+            print(f"| truth plus (near < {a.near_m / 1000:g} km) | median error (m) | within 2.5 m & 0.5 deg | within 5 m & 1 deg |")
+            print("| --- | ---: | ---: | ---: |")
+            for k in ("truth", "offset", "near", "far", "image"):
+                v = np.array([p[k] for p in parts])
+                h = np.array([p["heading_" + k] for p in parts])
+                print(f"| {k} | {np.median(v):.2f} | {np.sum((v <= 2.5) & (h <= 0.5))} of {v.size} | "
+                      f"{np.sum((v <= 5.0) & (h <= 1.0))} of {v.size} |")
     return 0
 
 

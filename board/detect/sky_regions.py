@@ -999,6 +999,24 @@ def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorPa
     return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
+def _black_sky(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> tuple[float, float] | None:
+    """The sky's level and noise (grey, 0-1: :func:`_fit`'s median and 1.4826 MAD, floored at half a level of
+    8 bits) when the view's sky is black (airless: no gradient, haze or glow of its own), else None.
+
+    The one definition of "a black-sky view" for the checks that act only there: the seen pixels more than 20
+    rows above the line (every 4th row and column: a few thousand pixels, not millions), at least 500 of them,
+    whose median is darker than ``P.black_sky_grey`` (0 turns those checks off)."""
+    if P.black_sky_grey <= 0:
+        return None
+    H = grey.shape[0]
+    far = seen[::4, ::4] & (np.arange(0, H, 4)[:, None] < (b[None, ::4] - 20))
+    vals = grey[::4, ::4][far]
+    if vals.size < 500:
+        return None
+    sky, sd = _fit(vals, 0.5 / 255.0)
+    return (sky, sd) if sky < P.black_sky_grey else None
+
+
 def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool
                         ) -> np.ndarray:
     """Per column 1, or down to 0 where, under a black (airless) sky, the rows just above the line are brighter
@@ -1007,22 +1025,17 @@ def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: De
     below the classes' contrast (the step-above check's 0.15) but, averaged over ``P.faint_ground_rows`` and
     ``P.faint_ground_columns`` each side, many noise sigmas of a sky that has no gradient, haze or glow.
 
-    The view's sky: :func:`_fit` (median, 1.4826 MAD floored at half a level of 8 bits) of the seen pixels
-    more than 20 rows above the line; views whose sky is not black (``P.black_sky_grey``) are not checked.
+    The view's sky: :func:`_black_sky`; views whose sky is not black are not checked.
     """
-    H, W = grey.shape
+    W = grey.shape[1]
     ones = np.ones(W)
     m, k = P.faint_ground_rows
-    if k <= m or P.black_sky_grey <= 0:
+    if k <= m:
         return ones
-    # (every 4th row and column: the sky's level and spread from a few thousand pixels, not millions)
-    far = seen[::4, ::4] & (np.arange(0, H, 4)[:, None] < (b[None, ::4] - 20))
-    vals = grey[::4, ::4][far]
-    if vals.size < 500:
+    black = _black_sky(grey, seen, b, P)
+    if black is None:
         return ones
-    sky, sd = _fit(vals, 0.5 / 255.0)
-    if not sky < P.black_sky_grey:
-        return ones
+    sky, sd = black
     band, nb = _window_mean(grey, seen.astype(np.float32), b, -k, -m)
     weight = nb * (nb >= 0.5 * (k - m))                  # seen rows of a column's band (none: too few seen)
     h = max(int(P.faint_ground_columns), 0)
@@ -1279,8 +1292,8 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     the view sets it.  A column whose "sky" window is less than ``P.sky_colour_ramp[0]`` of the way from
     the ground's colour to the sky's gets 0, more than ``[1]`` of the way 1.  Views whose sky and ground
     differ by less than ``P.sky_colour_min_contrast`` (grey images, a dusty sky the regolith's colour)
-    are not checked (all 1).  With ``grey`` (the image's grey, 0-1), in a view whose sky is black (the median
-    "sky" window darker than ``P.black_sky_grey``), a "sky" window darker than ``P.colour_min_grey`` has no
+    are not checked (all 1).  With ``grey`` (the image's grey, 0-1), in a view whose sky is black
+    (:func:`_black_sky`), a "sky" window darker than ``P.colour_min_grey`` has no
     colour to measure (the log ratio of sensor noise) and is left alone (1), nor does it set the view's sky
     colour; under a bright sky every window is checked as before.  Returns the per-column factor, that sky-ground
     colour offset and the ground's colour (log blue / red).
@@ -1292,12 +1305,11 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     gr_c, n_g = _window_mean(chroma, sf, b, m, R)
     ok_g = n_g >= P.min_seen_rows
     ok_s = n_s >= P.min_seen_rows
-    if grey is not None and P.colour_min_grey > 0 and ok_s.any():
+    # only in a view whose sky is black (:func:`_black_sky`): under a bright sky a dark "sky" window is a shaded
+    # slope, and its colour (even the ratio of noise) is all the check has to go on there, as before
+    if grey is not None and P.colour_min_grey > 0 and ok_s.any() and _black_sky(grey, seen, b, P) is not None:
         sky_grey, _ = _window_mean(grey, sf, b, -R, -m)
-        # only in a view whose sky is black: under a bright sky a dark "sky" window is a shaded slope, and its
-        # colour (even the ratio of noise) is all the check has to go on there, as before
-        if np.median(sky_grey[ok_s]) < P.black_sky_grey:
-            ok_s &= sky_grey >= P.colour_min_grey
+        ok_s &= sky_grey >= P.colour_min_grey
     if ok_g.sum() < 10 or ok_s.sum() < 10:
         return np.ones(W), 0.0, 0.0
     g_ref = float(np.median(gr_c[ok_g]))
