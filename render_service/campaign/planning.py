@@ -114,12 +114,20 @@ def choose_site(profile: Profile, bounds: tuple[float, float, float, float], rng
     return Site(cx, cy, area, step, (xmin, ymin, xmax, ymax))
 
 
+def prior_margin_m(profile: Profile) -> float:
+    """How far a position prior may lie from its pose (metres): the window cases' largest prior offset and,
+    when the profile runs heading-only cases, their largest (table 8's 20 m)."""
+    heading = max(profile.heading_offsets_m, default=0.0) if profile.heading_presets else 0.0
+    return max(profile.window_prior_max_m, heading)
+
+
 def pose_half_m(profile: Profile) -> float:
-    """Half side of the square where poses are drawn: the area less the window and prior margins."""
-    half = profile.area_m / 2 - profile.window_m / 2 - profile.window_prior_max_m - profile.step_m
+    """Half side of the square where poses are drawn: the area less the window and prior margins, so that every
+    position prior a case is given lies on the database's grid (a prior off it is refused by the matcher)."""
+    half = profile.area_m / 2 - profile.window_m / 2 - prior_margin_m(profile) - profile.step_m
     if half < 2 * profile.step_m:
         raise InvalidInputError(f"a {profile.area_m:g} m area is too small for {profile.window_m:g} m windows with "
-                                f"priors {profile.window_prior_max_m:g} m off: enlarge the area")
+                                f"priors {prior_margin_m(profile):g} m off: enlarge the area")
     return half
 
 

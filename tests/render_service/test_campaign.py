@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,27 @@ def test_poses_are_off_the_grid_inside_the_area_and_seeded():
     # headings and positions are spread, not a fixed list
     assert np.std([c.heading_deg for c in cands]) > 80
     assert len({round(c.x, 3) for c in cands}) == len(cands)
+
+
+def test_every_position_prior_lies_on_the_database_grid():
+    """A rover-scale area (100 m at 1 m, window priors 5 m off) with table 8's heading priors 0-20 m off: every
+    window and heading case's prior lies inside the area (the matcher refuses one off its grid: session 33's
+    Gale campaign lost 9 heading cases so).  The report profile's 1 km area draws its poses where it did."""
+    prof = get_profile("report", area_m=100.0, step_m=1.0, site_margin_m=100.0, window_m=10.0,
+                       window_prior_max_m=5.0, t4_presets=("realistic",), t5_presets=(),
+                       window_presets=("realistic",), heading_presets=("realistic",))
+    site = _site(prof, (0.0, 0.0, 348.0, 337.0), seed=5)
+    cases = [c for c in planning.plan_cases(prof, 30) if c.mode in ("window", "heading")]
+    assert {c.mode for c in cases} == {"window", "heading"} and max(c.prior_offset_m for c in cases) == 20.0
+    for i in range(200):
+        cand = planning.draw_candidate(131, i, site, prof)
+        for c in cases[:: len(cases) // 40]:
+            x, y, _ = planning.prior_of(c, cand, prof)
+            assert abs(x - site.center_x) <= site.area_m / 2 and abs(y - site.center_y) <= site.area_m / 2
+    # without heading cases the margin is the window priors' as before
+    assert planning.pose_half_m(replace(prof, heading_presets=())) == 100.0 / 2 - 10.0 / 2 - 5.0 - 1.0
+    report = get_profile("report")
+    assert planning.pose_half_m(report) == report.area_m / 2 - report.window_m / 2 - report.window_prior_max_m - 5.0
 
 
 def test_site_inside_the_dem_with_margin_and_refused_when_too_small():
