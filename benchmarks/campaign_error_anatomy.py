@@ -78,8 +78,10 @@ def phase_bias(run: Path, rows: list[dict], n_bins: int = 10) -> list[tuple[floa
     return out
 
 
-def split_rows(run: Path, rows: list[dict], width_deg: float) -> list[dict]:
-    """Per case: the position error (m) of the truth, truth + smooth error, truth + rough error, and the campaign's."""
+def _locate_parts(run: Path, rows: list[dict], parts) -> list[dict]:
+    """Per case, the position error (m) and heading error (deg) of each query ``parts(row, truth, e)`` names
+    (``e``: the case's extraction error, NaN where masked; each query is NaN where ``e`` is), located lost in
+    space against the campaign's database, beside the campaign's own (``image``)."""
     from board.locate import locate
     from board.locate.truth import Truth, compare_with_truth
     from board.skydb import SkyDB
@@ -92,16 +94,26 @@ def split_rows(run: Path, rows: list[dict], width_deg: float) -> list[dict]:
         step = 360.0 / e.size
         truth, case = _truth_for(run, r, e.size)
         ok = np.isfinite(e)
-        e0 = np.where(ok, e, 0.0)
-        smooth = circular_lowpass(e0, width_deg, step)
-        res = {"case_id": r["case_id"], "preset": r["preset"], "image": float(r["error_m"]),
-               "sigma_m": math.hypot(r.get("sigma_x_m", 0.0), r.get("sigma_y_m", 0.0))}
         t = Truth(float(case["true_x"]), float(case["true_y"]), float(case["true_heading_deg"]))
-        for name, q in (("truth", truth), ("smooth", truth + smooth), ("rough", truth + e0 - smooth)):
+        res = {"case_id": r["case_id"], "preset": r["preset"], "image": float(r["error_m"]),
+               "heading_image": float(r.get("heading_error_deg", 0.0)),
+               "sigma_m": math.hypot(r.get("sigma_x_m", 0.0), r.get("sigma_y_m", 0.0))}
+        for name, q in parts(r, truth, e):
             fix = locate(db, Skyline(np.where(ok, q, np.nan), 0.0, step), mode="lost")
-            res[name] = compare_with_truth(fix, t).error_m
+            c = compare_with_truth(fix, t)
+            res[name], res["heading_" + name] = c.error_m, abs(c.heading_error_deg)
         out.append(res)
     return out
+
+
+def split_rows(run: Path, rows: list[dict], width_deg: float) -> list[dict]:
+    """Per case: the position error (m) of the truth, truth + smooth error, truth + rough error, and the campaign's."""
+    def parts(r, truth, e):
+        e0 = np.where(np.isfinite(e), e, 0.0)
+        smooth = circular_lowpass(e0, width_deg, 360.0 / e.size)
+        return (("truth", truth), ("smooth", truth + smooth), ("rough", truth + e0 - smooth))
+
+    return _locate_parts(run, rows, parts)
 
 
 #: distance bands of the extraction error table (metres)
@@ -180,29 +192,14 @@ def distance_table(rows: list[dict], dists: dict[str, np.ndarray],
 def split_by_distance(run: Path, rows: list[dict], dists: dict[str, np.ndarray], near_m: float) -> list[dict]:
     """Per case: the position error (m) of the truth on the kept arc, plus the error of the near horizon only
     (closer than ``near_m``), of the far one only, and of the case's median error only (a constant offset)."""
-    from board.locate import locate
-    from board.locate.truth import Truth, compare_with_truth
-    from board.skydb import SkyDB
-    from board.skyline import Skyline
-
-    db = SkyDB.open(run / "db.zarr")
-    out = []
-    for r in rows:
-        e = np.asarray(r["err_deg"], dtype=np.float64)
-        step = 360.0 / e.size
-        truth, case = _truth_for(run, r, e.size)
+    def parts(r, truth, e):
         ok = np.isfinite(e)
         e0 = np.where(ok, e, 0.0)
         near = dists[r["case_id"]] < near_m
-        t = Truth(float(case["true_x"]), float(case["true_y"]), float(case["true_heading_deg"]))
-        res = {"case_id": r["case_id"], "image": float(r["error_m"]), "heading_image": float(r["heading_error_deg"])}
-        for name, q in (("truth", truth), ("near", truth + np.where(near, e0, 0.0)),
-                        ("far", truth + np.where(near, 0.0, e0)), ("offset", truth + float(np.median(e[ok])))):
-            fix = locate(db, Skyline(np.where(ok, q, np.nan), 0.0, step), mode="lost")
-            c = compare_with_truth(fix, t)
-            res[name], res["heading_" + name] = c.error_m, abs(c.heading_error_deg)
-        out.append(res)
-    return out
+        return (("truth", truth), ("near", truth + np.where(near, e0, 0.0)), ("far", truth + np.where(near, 0.0, e0)),
+                ("offset", truth + float(np.median(e[ok]))))
+
+    return _locate_parts(run, rows, parts)
 
 
 def main(argv: list[str] | None = None) -> int:
