@@ -88,6 +88,11 @@ class DetectorParams:
     above_step_window_px: int = 3       # rows each side of a step looked for above the line
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
     colour_step_above: bool = True      # the step-above check also on the colour feature alone
+    above_step_sector_noise: bool = True  # the step-above check's noise (6 sigmas of the sky's steps) measured per
+                                        # azimuth sector too, the larger one counting: the discriminant is scaled
+                                        # per column, so a dim sector's sky is noisier in it (a black lunar sky:
+                                        # the view's one figure let sensor noise pass for a ridge in 10-30 % of
+                                        # the columns, session 34)
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
@@ -987,15 +992,17 @@ def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tup
     return proj, np.sqrt(var_s)
 
 
-def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams
+def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool = False
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Per column, 1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0
-    where it has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky), and the
-    row just below the largest such step (-1: none)."""
-    s_above, s_noise, row = _largest_step_above(proj, seen, b, P.above_step_window_px)
+    where it has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky: the view's,
+    or its azimuth sector's where larger, ``P.above_step_sector_noise``), and the row just below the largest such
+    step (-1: none)."""
+    edges = _sector_edges(proj.shape[1], P.n_sectors) if P.above_step_sector_noise else None
+    s_above, s_noise, row = _largest_step_above(proj, seen, b, P.above_step_window_px, edges, wrap)
     lo, hi = P.above_step_range
-    lo = max(lo, 6.0 * s_noise)
-    hi = max(hi, lo + 0.05)
+    lo = np.maximum(lo, 6.0 * s_noise)
+    hi = np.maximum(hi, lo + 0.05)
     return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
@@ -1110,12 +1117,12 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    steps = [_step_above(proj, seen, b, P)]
+    steps = [_step_above(proj, seen, b, P, wrap)]
     if colour_proj is not None:
         # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
         # make the intensity-and-colour discriminant of the ground strip between them look like sky,
         # while its colour is plainly the ground's
-        steps.append(_step_above(colour_proj, seen, b, P))
+        steps.append(_step_above(colour_proj, seen, b, P, wrap))
     c_above = np.minimum.reduce([c for c, _ in steps])
     c_faint = _faint_ground_above(grey, seen, b, P, wrap)
     if checks is not None:
@@ -1323,13 +1330,19 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     return np.clip((share - t0) / (t1 - t0), 0.0, 1.0), offset, g_ref
 
 
-def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int
-                        ) -> tuple[np.ndarray, float, np.ndarray]:
+def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: int,
+                        edges: np.ndarray | None = None, wrap: bool = False
+                        ) -> tuple[np.ndarray, float | np.ndarray, np.ndarray]:
     """Per column, the largest sky-to-ground step of ``proj`` (mean of ``k`` rows below minus ``k`` rows
     above a row boundary) among the boundaries whose windows lie in seen rows strictly above row ``b - 1``
     (0 where there is no such boundary), the noise of such a step: 1.4826 MAD of the steps in the
     sky more than 10 rows above the line (the features are blurred: the pixel noise would not tell), and
     the row just below that step's boundary (-1 where there is no boundary).
+
+    With sector ``edges`` (:func:`_sector_edges`) the noise is per column: the larger of the view's and its
+    sector's (the same MAD over the sector's columns, at least 100 steps, spread between sector centres as the
+    classes are; circularly when ``wrap``).  ``proj`` is scaled per column by the sector's class contrast, so
+    a sector of dim ground has a noisier sky in it than the view's figure says.
 
     float32 running sums in place: about four (H, W) float32 arrays at the peak.
     """
@@ -1351,17 +1364,26 @@ def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: in
     r = np.arange(k, H - k + 1)[:, None]
     ok &= r + k <= b[None, :] - 1
     far = ok & (r + k <= b[None, :] - 10)
-    sky_steps = step[far]
+    noise = _mad_sigma(step[far], max_size=50_000)
+    if edges is not None and len(edges) > 2:
+        per_sector = np.array([_mad_sigma(step[:, c0:c1][far[:, c0:c1]]) for c0, c1 in zip(edges[:-1], edges[1:])])
+        noise = np.maximum(noise, _per_column(np.nan_to_num(per_sector, nan=0.0), edges, W, wrap))
     del far
-    if sky_steps.size > 50_000:
-        sky_steps = sky_steps[:: sky_steps.size // 50_000]
-    noise = (float(1.4826 * np.median(np.abs(sky_steps - np.median(sky_steps)))) if sky_steps.size >= 100
-             else 0.0)
     step[~ok] = 0.0
     at = np.argmax(step, axis=0)
     best = step[at, np.arange(W)]
     row = np.where(ok.any(axis=0), at + k, -1).astype(np.int64)
     return np.maximum(best, 0.0).astype(np.float64), noise, row
+
+
+def _mad_sigma(v: np.ndarray, min_size: int = 100, max_size: int = 5_000) -> float:
+    """1.4826 MAD of ``v`` (a Gaussian's sigma), from an even subsample of at most ``max_size`` values; 0 for fewer
+    than ``min_size`` values."""
+    if v.size < min_size:
+        return 0.0
+    if v.size > max_size:
+        v = v[:: v.size // max_size]
+    return float(1.4826 * np.median(np.abs(v - np.median(v))))
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:

@@ -12,7 +12,7 @@ from board.acquisition import PanoramaGeometry
 from board.detect import DetectorParams, detect_baseline, detect_skyline
 from board.detect.baseline import baseline_graph
 from board.detect.graph_dp import shortest_path_dp, shortest_path_l1
-from board.detect.sky_regions import _drop_short_runs
+from board.detect.sky_regions import _drop_short_runs, _largest_step_above, _sector_edges
 from board.synthetic import SceneLook, SkylineFunction, synth_panorama
 
 GEOM = PanoramaGeometry.full_circle(1200, 300, elevation_top_deg=30.0, elevation_bottom_deg=-15.0)
@@ -656,6 +656,62 @@ def test_a_black_airless_sky_has_no_colour_to_veto_columns_with(params, seed):
     err = np.abs(det.line_row - _truth_rows(f))[det.valid]
     assert np.median(err) <= 0.35                            # pixels (a hard edge: +-0.5 px of quantisation)
     assert err.max() * GEOM.elevation_step_deg <= 1.0        # no kept sample 1 degree off (6.7 px)
+
+
+def test_step_noise_per_sector_equals_a_brute_force_mad():
+    # a discriminant whose sky noise grows tenfold across the view: the per-column noise is the larger of the view's
+    # and the sector's 1.4826 MAD of the 3-row steps more than 10 rows above the line, between sector centres
+    rng = np.random.default_rng(5)
+    H, W, k = 120, 96, 3
+    sd = np.geomspace(0.01, 0.1, W)
+    proj = (rng.standard_normal((H, W)) * sd).astype(np.float32)
+    b = rng.integers(60, 100, W)
+    seen = np.ones((H, W), bool)
+    edges = _sector_edges(W, 8)
+    _, view_noise, _ = _largest_step_above(proj, seen, b, k)
+    _, noise, _ = _largest_step_above(proj, seen, b, k, edges, wrap=False)
+
+    def mad(v):
+        return 1.4826 * np.median(np.abs(v - np.median(v)))
+
+    steps = {c: [proj[r:r + k, c].mean() - proj[r - k:r, c].mean() for r in range(k, H - k + 1) if r + k <= b[c] - 10]
+             for c in range(W)}
+    assert view_noise == pytest.approx(mad(np.concatenate([steps[c] for c in range(W)])), rel=1e-4)
+    sector = [mad(np.concatenate([steps[c] for c in range(c0, c1)])) for c0, c1 in zip(edges[:-1], edges[1:])]
+    centres = 0.5 * (edges[:-1] + edges[1:]) - 0.5
+    expected = np.maximum(view_noise, np.interp(np.arange(W), centres, sector))
+    np.testing.assert_allclose(noise, expected, rtol=1e-4)
+    assert noise[-1] > 3 * view_noise > noise[0]                           # the test can fail: noise differs
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_dim_sector_under_a_black_sky_is_kept_where_its_sky_is_only_noise(params, seed):
+    # the Moon: a black sky (1.5 +- 1.5 DN) over regolith lit at 60-200 DN, except a 90-deg sector of dim ground
+    # (12 DN, 7 noise sigmas per pixel: plain to the eye).  The discriminant is scaled per column by its sector's
+    # class contrast, so there the sky's noise is 15 times the view's: judged by the view's noise, the largest
+    # noise step among a column's hundred sky rows passes for a ridge above the line and the whole sector is
+    # masked.  Judged by its sector's noise (DetectorParams.above_step_sector_noise), the sector is kept, on the line
+    rng = np.random.default_rng(seed)
+    az, el = GEOM.azimuths_deg(), GEOM.elevations_deg()
+    f = SkylineFunction.random(200 + seed)
+    ground = el[:, None] < f(az)[None, :]
+    d = (az - rng.uniform(0, 360) + 180) % 360 - 180                       # azimuth from the dim sector's centre
+    level = np.where(np.abs(d) < 45, 12.0, 60 + 140 * (0.5 + 0.5 * np.cos(np.radians(d))))
+    texture = 1 + 0.15 * rng.standard_normal((GEOM.height, GEOM.width))
+    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
+    img[ground] = (level[None, :, None] * texture[..., None] * np.array([0.62, 0.8, 1.0]))[ground]   # BGR: brown
+    img += rng.normal(1.5, 1.5, img.shape)
+    img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    dim = np.abs(d) < 40
+    det = detect_skyline(img, wrap=True, params=params)
+    err = np.abs(det.line_row - _truth_rows(f))
+    assert det.valid[dim].mean() >= 0.8
+    assert np.median(err[det.valid & dim]) <= 0.4                          # pixels
+    assert err[det.valid].max() * GEOM.elevation_step_deg <= 1.0           # no kept sample 1 degree off
+    # the view's noise alone masks the dim sector (the test can fail)
+    old = detect_skyline(img, wrap=True, params=replace(params, above_step_sector_noise=False))
+    assert old.valid[dim].mean() <= 0.2
+    assert abs(old.valid[~dim].mean() - det.valid[~dim].mean()) <= 0.02   # the bright sectors as they were
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
