@@ -87,13 +87,13 @@ class DetectorParams:
     smooth_evidence_cap: float = 0.5    # most sky evidence (log-likelihood ratio) smoothness alone may give
     above_step_window_px: int = 3       # rows each side of a step looked for above the line
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
+                                        # lowers the confidence from 1 to 0: the line may be a lower ridge
     colour_step_above: bool = True      # the step-above check also on the colour feature alone
     above_step_sector_noise: bool = True  # the step-above check's noise (6 sigmas of the sky's steps) measured per
                                         # azimuth sector too, the larger one counting: the discriminant is scaled
                                         # per column, so a dim sector's sky is noisier in it (a black lunar sky:
                                         # the view's one figure let sensor noise pass for a ridge in 10-30 % of
                                         # the columns, session 34)
-                                        # lowers the confidence from 1 to 0: the line may be a lower ridge
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
     local_grey_step: float = 0.5        # the line is placed on the grey step where it is this share of the class
@@ -1369,7 +1369,7 @@ def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: in
     if edges is not None and len(edges) > 2:
         cols = [slice(c0, c1, max(1, (c1 - c0) // _SECTOR_NOISE_COLUMNS)) for c0, c1 in zip(edges[:-1], edges[1:])]
         per_sector = np.array([_mad_sigma(step[:, c][far[:, c]], max_size=1_000) for c in cols])
-        noise = np.maximum(noise, _per_column(np.nan_to_num(per_sector, nan=0.0), edges, W, wrap))
+        noise = np.maximum(noise, _per_column(per_sector, edges, W, wrap))
     del far
     step[~ok] = 0.0
     at = np.argmax(step, axis=0)
