@@ -89,11 +89,13 @@ class DetectorParams:
     above_step_range: tuple[float, float] = (0.15, 0.3)   # a step above the line this large (class contrasts)
                                         # lowers the confidence from 1 to 0: the line may be a lower ridge
     colour_step_above: bool = True      # the step-above check also on the colour feature alone
-    above_step_sector_noise: bool = True  # the step-above check's noise (6 sigmas of the sky's steps) measured per
-                                        # azimuth sector too, the larger one counting: the discriminant is scaled
-                                        # per column, so a dim sector's sky is noisier in it (a black lunar sky:
-                                        # the view's one figure let sensor noise pass for a ridge in 10-30 % of
-                                        # the columns, session 34)
+    above_step_sector_noise: bool = True  # under a black sky (black_sky_grey), the step-above check's noise (6 sigmas
+                                        # of the sky's steps) measured per azimuth sector too, the larger one
+                                        # counting: the discriminant is scaled per column, so a dim sector's sky is
+                                        # noisier in it (the view's one figure let sensor noise pass for a ridge in
+                                        # 10-30 % of the columns, session 34).  Not under a bright sky: there a
+                                        # low-contrast sector is where a hazy ridge stands, and a noisy view's
+                                        # sector figure let lines under such ridges through (rendered noise scene)
     initial_bands: float = 0.2          # > 0: where the grey split contradicts the view, first class fits
                                         # on this fraction of the seen rows at the top / bottom
     local_grey_step: float = 0.5        # the line is placed on the grey step where it is this share of the class
@@ -135,6 +137,10 @@ class DetectorParams:
                                         # a grey scene's colour difference is the channels' noise
     coarse_contrast_cap: bool = False   # True: the reduced copy's step-contrast check also caps the full-resolution
                                         # confidence (before session 15; now only its wide-window checks do)
+    subpixel_gaussian: bool = True      # the step's peak refined by a parabola through the logarithms of its three
+                                        # samples (exact for a Gaussian-blurred edge) rather than through the samples
+                                        # (which pulls it towards the sampled row by up to 0.05-0.07 px, "pixel
+                                        # locking"; session 34), where the three are positive
     reseat_on_step_above: bool = True   # columns masked for a sky-to-ground step above the line: the path solved
                                         # again kept at or above that step (a far ridge behind a near slope's
                                         # edge); a column takes the new line only where it passes every check
@@ -653,13 +659,14 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     istep[1:] *= seen_pair
     istep *= polarity[None, :]
     on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
-    y = np.where(on_grey, _subpixel(istep, b), _subpixel(diff, b))
+    g = P.subpixel_gaussian
+    y = np.where(on_grey, _subpixel(istep, b, g), _subpixel(diff, b, g))
     if lin_rgb is None or not P.linear_colour_step:
         return y
     clip = float(to_linear(np.array([P.saturation_level], np.float32), P.transfer)[0]) - 1e-4
     cstep, length, whole = _colour_step(lin_rgb, sf, b, w, clip)
     use = (length >= P.colour_step_min) & (length >= P.colour_step_min_share * whole)
-    return np.where(use, _subpixel(cstep, b), y)
+    return np.where(use, _subpixel(cstep, b, g), y)
 
 
 def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, clip: float
@@ -933,8 +940,11 @@ def _empty(W: int, diag: dict) -> Detection:
     return Detection(nan, nan.copy(), np.zeros(W), np.zeros(W, dtype=bool), diag)
 
 
-def _subpixel(step: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Line position: the strongest step within +-1 row of ``b``, refined by a parabola (rows)."""
+def _subpixel(step: np.ndarray, b: np.ndarray, gaussian: bool = False) -> np.ndarray:
+    """Line position: the strongest step within +-1 row of ``b``, refined by a parabola (rows) through the three
+    samples around it or, ``gaussian``, through their logarithms where all three are positive (a Gaussian's peak
+    exactly: a blurred edge's step is nearly one, and the samples' parabola pulls its peak towards the sampled row
+    by up to 0.05 px at a blur of 1 px, 0.07 px at 0.8 px)."""
     H, W = step.shape
     cols = np.arange(W)
     offs = np.arange(-1, 2)
@@ -948,6 +958,11 @@ def _subpixel(step: np.ndarray, b: np.ndarray) -> np.ndarray:
     den = g0 - 2.0 * g1 + g2
     with np.errstate(divide="ignore", invalid="ignore"):
         d = np.where(den < -1e-9, 0.5 * (g0 - g2) / den, 0.0)
+        if gaussian:
+            pos = (g0 > 0) & (g1 > 0) & (g2 > 0)
+            l0, l1, l2 = (np.log(np.where(pos, g, 1.0)) for g in (g0, g1, g2))
+            den = l0 - 2.0 * l1 + l2
+            d = np.where(pos & (den < -1e-9), 0.5 * (l0 - l2) / den, d)
     d = np.clip(d, -0.5, 0.5)
     # step[r] sits between rows r-1 and r, i.e. at r - 0.5
     return bb - 0.5 + d
@@ -992,13 +1007,13 @@ def _discriminant(feats: list[np.ndarray], stats: list, which: list[int]) -> tup
     return proj, np.sqrt(var_s)
 
 
-def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool = False
-                ) -> tuple[np.ndarray, np.ndarray]:
+def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool = False,
+                black: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Per column, 1 where ``proj`` (sky 0, ground 1 per column) has no sky-to-ground step above the line, 0
     where it has one of ``P.above_step_range`` or more (and 6 noise sigmas of such steps in the sky: the view's,
-    or its azimuth sector's where larger, ``P.above_step_sector_noise``), and the row just below the largest such
-    step (-1: none)."""
-    edges = _sector_edges(proj.shape[1], P.n_sectors) if P.above_step_sector_noise else None
+    or in a ``black``-sky view its azimuth sector's where larger, ``P.above_step_sector_noise``), and the row just
+    below the largest such step (-1: none)."""
+    edges = _sector_edges(proj.shape[1], P.n_sectors) if (black and P.above_step_sector_noise) else None
     s_above, s_noise, row = _largest_step_above(proj, seen, b, P.above_step_window_px, edges, wrap)
     lo, hi = P.above_step_range
     lo = np.maximum(lo, 6.0 * s_noise)
@@ -1024,22 +1039,22 @@ def _black_sky(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorPar
     return (sky, sd) if sky < P.black_sky_grey else None
 
 
-def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool
-                        ) -> np.ndarray:
+def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams, wrap: bool,
+                        black: tuple[float, float] | None) -> np.ndarray:
     """Per column 1, or down to 0 where, under a black (airless) sky, the rows just above the line are brighter
     than the sky by more than its noise: a shaded far ridge, lit only by the ground around it (a few grey
     levels over the sky's black), rising behind a sunlit near edge that the line follows.  Its step is far
     below the classes' contrast (the step-above check's 0.15) but, averaged over ``P.faint_ground_rows`` and
     ``P.faint_ground_columns`` each side, many noise sigmas of a sky that has no gradient, haze or glow.
 
-    The view's sky: :func:`_black_sky`; views whose sky is not black are not checked.
+    ``black``: the view's sky level and noise (:func:`_black_sky`); views whose sky is not black (None) are not
+    checked.
     """
     W = grey.shape[1]
     ones = np.ones(W)
     m, k = P.faint_ground_rows
     if k <= m:
         return ones
-    black = _black_sky(grey, seen, b, P)
     if black is None:
         return ones
     sky, sd = black
@@ -1117,14 +1132,15 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    steps = [_step_above(proj, seen, b, P, wrap)]
+    black = _black_sky(grey, seen, b, P)
+    steps = [_step_above(proj, seen, b, P, wrap, black is not None)]
     if colour_proj is not None:
         # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
         # make the intensity-and-colour discriminant of the ground strip between them look like sky,
         # while its colour is plainly the ground's
-        steps.append(_step_above(colour_proj, seen, b, P, wrap))
+        steps.append(_step_above(colour_proj, seen, b, P, wrap, black is not None))
     c_above = np.minimum.reduce([c for c, _ in steps])
-    c_faint = _faint_ground_above(grey, seen, b, P, wrap)
+    c_faint = _faint_ground_above(grey, seen, b, P, wrap, black)
     if checks is not None:
         checks.update(region=np.nan_to_num(c_region, nan=0.0), above=np.nan_to_num(c_above, nan=0.0),
                       above_steps=steps)
