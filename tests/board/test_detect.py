@@ -661,6 +661,17 @@ def test_a_grey_view_with_masked_columns_does_not_start_the_colour_second_pass(p
     assert np.max(np.abs(det.line_row - rows)[det.valid]) <= 1.0
 
 
+def _regolith_under_black_sky(f: SkylineFunction, level: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """uint8 BGR view on GEOM: brown regolith of grey ``level`` per column (DN, 15 % texture) below the skyline
+    ``f``, over a black sky; sensor noise of 1.5 +- 1.5 DN everywhere."""
+    ground = GEOM.elevations_deg()[:, None] < f(GEOM.azimuths_deg())[None, :]
+    texture = 1 + 0.15 * rng.standard_normal((GEOM.height, GEOM.width))
+    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
+    img[ground] = (level[None, :, None] * texture[..., None] * np.array([0.62, 0.8, 1.0]))[ground]   # BGR: brown
+    img += rng.normal(1.5, 1.5, img.shape)
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_black_airless_sky_has_no_colour_to_veto_columns_with(params, seed):
     # the Moon's sky: black (sensor noise around 1.5 DN) over brown regolith from sunlit (200 DN) to dim (25 DN).
@@ -668,16 +679,9 @@ def test_a_black_airless_sky_has_no_colour_to_veto_columns_with(params, seed):
     # to read it, masks the columns whose noise happens to lean red (1-2 % here, a quarter of a rendered lunar
     # view with shaded regolith); a black window has no colour, and every column is kept
     rng = np.random.default_rng(seed)
-    az, el = GEOM.azimuths_deg(), GEOM.elevations_deg()
     f = SkylineFunction.random(100 + seed)
-    ground = el[:, None] < f(az)[None, :]
-    level = 25 + 175 * (0.5 + 0.5 * np.cos(np.radians(az - rng.uniform(0, 360))))
-    texture = 1 + 0.15 * rng.standard_normal((GEOM.height, GEOM.width))
-    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
-    img[ground] = (level[None, :, None] * texture[..., None] * np.array([0.62, 0.8, 1.0]))[ground]   # BGR: brown
-    img += rng.normal(1.5, 1.5, img.shape)
-    img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-    det = detect_skyline(img, wrap=True, params=params)
+    level = 25 + 175 * (0.5 + 0.5 * np.cos(np.radians(GEOM.azimuths_deg() - rng.uniform(0, 360))))
+    det = detect_skyline(_regolith_under_black_sky(f, level, rng), wrap=True, params=params)
     assert det.diagnostics["sky_coloured_like_ground_fraction"] == 0.0
     assert det.valid.mean() >= 0.995
     err = np.abs(det.line_row - _truth_rows(f))[det.valid]
@@ -719,16 +723,10 @@ def test_a_dim_sector_under_a_black_sky_is_kept_where_its_sky_is_only_noise(para
     # noise step among a column's hundred sky rows passes for a ridge above the line and the whole sector is
     # masked.  Judged by its sector's noise (DetectorParams.above_step_sector_noise), the sector is kept, on the line
     rng = np.random.default_rng(seed)
-    az, el = GEOM.azimuths_deg(), GEOM.elevations_deg()
     f = SkylineFunction.random(200 + seed)
-    ground = el[:, None] < f(az)[None, :]
-    d = (az - rng.uniform(0, 360) + 180) % 360 - 180                       # azimuth from the dim sector's centre
+    d = (GEOM.azimuths_deg() - rng.uniform(0, 360) + 180) % 360 - 180      # azimuth from the dim sector's centre
     level = np.where(np.abs(d) < 45, 12.0, 60 + 140 * (0.5 + 0.5 * np.cos(np.radians(d))))
-    texture = 1 + 0.15 * rng.standard_normal((GEOM.height, GEOM.width))
-    img = np.zeros((GEOM.height, GEOM.width, 3), np.float32)
-    img[ground] = (level[None, :, None] * texture[..., None] * np.array([0.62, 0.8, 1.0]))[ground]   # BGR: brown
-    img += rng.normal(1.5, 1.5, img.shape)
-    img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    img = _regolith_under_black_sky(f, level, rng)
     dim = np.abs(d) < 40
     det = detect_skyline(img, wrap=True, params=params)
     err = np.abs(det.line_row - _truth_rows(f))
