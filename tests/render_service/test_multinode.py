@@ -214,8 +214,11 @@ def test_job_split_across_two_workers_survives_a_killed_worker(deployment, servi
     assert len(counts) == N_TILES  # every tile rendered (a tile killed mid-render is simply rendered again)
     by_worker = {w for _, w, _ in renders}
     assert by_worker == set(names.values()), by_worker  # split across both workers
-    late = [w for _, w, f in renders if f > t_kill + 1.0]
-    assert late and set(late) == {names["w2"]}  # after the kill, only the survivor renders
+    # after the kill only the survivor renders (a worker writes its render's row itself when it ends, so the killed
+    # one can write none after the kill: 0.2 s of slack for the signal), and it renders what was left: under load
+    # the rest may take it less than a second, so no margin on that side
+    assert {w for _, w, f in renders if f > t_kill + 0.2} <= {names["w2"]}
+    assert any(w == names["w2"] and f > t_kill for _, w, f in renders)
     t_end = time.monotonic() + 20
     while c.get("/healthz").json()["workers"] != 1 and time.monotonic() < t_end:
         time.sleep(0.3)
