@@ -224,12 +224,13 @@ def _chroma(image: np.ndarray) -> np.ndarray | None:
     return np.log(b, out=b)
 
 
-def _fit(values: np.ndarray, floor: float) -> tuple[float, float]:
-    """Robust centre and spread (median, 1.4826 MAD) of a class, the spread floored; subsampled to ~20k values."""
+def _fit(values: np.ndarray, floor: float, max_size: int = 20_000) -> tuple[float, float]:
+    """Robust centre and spread (median, 1.4826 MAD) of a class, the spread floored; subsampled to about
+    ``max_size`` values."""
     if values.size < 10:
         return float("nan"), floor
-    if values.size > 20_000:
-        values = values[:: values.size // 20_000]
+    if values.size > max_size:
+        values = values[:: values.size // max_size]
     med = _median(values)
     mad = 1.4826 * _median(np.abs(values - med))
     return med, max(mad, floor)
@@ -1399,14 +1400,10 @@ def _largest_step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, k: in
 _SECTOR_NOISE_COLUMNS = 16
 
 
-def _mad_sigma(v: np.ndarray, min_size: int = 100, max_size: int = 5_000) -> float:
-    """1.4826 MAD of ``v`` (a Gaussian's sigma), from an even subsample of at most ``max_size`` values; 0 for fewer
-    than ``min_size`` values."""
-    if v.size < min_size:
-        return 0.0
-    if v.size > max_size:
-        v = v[:: v.size // max_size]
-    return float(1.4826 * np.median(np.abs(v - np.median(v))))
+def _mad_sigma(v: np.ndarray, max_size: int, min_size: int = 100) -> float:
+    """:func:`_fit`'s spread (1.4826 MAD, unfloored) of ``v`` from an even subsample of about ``max_size`` values;
+    0 for fewer than ``min_size`` values (too few to tell the noise)."""
+    return _fit(v, 0.0, max_size)[1] if v.size >= min_size else 0.0
 
 
 def _grow_mask(valid: np.ndarray, margin: int, wrap: bool) -> np.ndarray:
