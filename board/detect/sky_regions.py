@@ -473,10 +473,12 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
         """Sub-pixel line, confidence and wide-window confidence of the path ``b``, and for colour images
         :func:`_sky_colour_unlike_ground`'s factor, sky-ground colour offset and ground colour."""
         y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
-        conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap)
+        black = _black_sky(grey, seen, b, P)      # once for both checks that act only under a black sky
+        conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap,
+                                    black=black)
         colour = None
         if chroma is not None:
-            colour = _sky_colour_unlike_ground(chroma, seen, b, P, grey)
+            colour = _sky_colour_unlike_ground(chroma, seen, b, P, grey, black=black)
             np.minimum(conf, colour[0], out=conf)
             np.minimum(context, colour[0], out=context)
         return y, conf, context, colour
@@ -1022,6 +1024,10 @@ def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorPa
     return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
+#: "not passed" for the checks' optional ``black`` (None is an answer: the view's sky is not black)
+_UNSET = object()
+
+
 def _black_sky(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> tuple[float, float] | None:
     """The sky's level and noise (grey, 0-1: :func:`_fit`'s median and 1.4826 MAD, floored at half a level of
     8 bits) when the view's sky is black (airless: no gradient, haze or glow of its own), else None.
@@ -1079,8 +1085,8 @@ def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: De
 
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
                 sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None,
-                on_step: np.ndarray | None = None, checks: dict | None = None, wrap: bool = False
-                ) -> tuple[np.ndarray, np.ndarray]:
+                on_step: np.ndarray | None = None, checks: dict | None = None, wrap: bool = False,
+                black: tuple[float, float] | None | object = _UNSET) -> tuple[np.ndarray, np.ndarray]:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring) and the
     same without the step-contrast and seen-rows checks: the checks whose windows look beyond the step
     (region consistency, saturation and glare, a step above the line).
@@ -1092,7 +1098,8 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     step (a far ridge as bright as the sky, that the classes ``p``, fitted on the whole sector's ground, call
     sky); checks : a dict that receives
     the individual checks' factors (``"region"``, ``"above"``) and the step-above check's factor and step
-    row per column on the discriminant and the colour (``"above_steps"``, :func:`_step_above`)."""
+    row per column on the discriminant and the colour (``"above_steps"``, :func:`_step_above`); black : the
+    view's :func:`_black_sky` for this line when the caller has it already (evaluated here when not passed)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(proj, sf, b, -w, 0)
@@ -1133,7 +1140,8 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    black = _black_sky(grey, seen, b, P)
+    if black is _UNSET:
+        black = _black_sky(grey, seen, b, P)
     steps = [_step_above(proj, seen, b, P, wrap, black is not None)]
     if colour_proj is not None:
         # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
@@ -1305,7 +1313,8 @@ def _step_above_limits(steps: list[tuple[np.ndarray, np.ndarray]], masked: np.nd
 
 
 def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams,
-                              grey: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+                              grey: np.ndarray | None = None, black: tuple[float, float] | None | object = _UNSET
+                              ) -> tuple[np.ndarray, float, float]:
     """Per column, 1 where the window above the line has the sky's colour, 0 where it has the ground's.
 
     Where near slopes fill the top of a view, there is no sky in those columns: the per-sector classes
@@ -1320,7 +1329,8 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     (:func:`_black_sky`), a "sky" window darker than ``P.colour_min_grey`` has no
     colour to measure (the log ratio of sensor noise) and is left alone (1), nor does it set the view's sky
     colour; under a bright sky every window is checked as before.  Returns the per-column factor, that sky-ground
-    colour offset and the ground's colour (log blue / red).
+    colour offset and the ground's colour (log blue / red).  ``black``: the view's :func:`_black_sky` for this
+    line when the caller has it already (evaluated from ``grey`` when not passed).
     """
     W = b.size
     R, m = P.region_window_px, P.contrast_window_px
@@ -1331,7 +1341,9 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     ok_s = n_s >= P.min_seen_rows
     # only in a view whose sky is black (:func:`_black_sky`): under a bright sky a dark "sky" window is a shaded
     # slope, and its colour (even the ratio of noise) is all the check has to go on there, as before
-    if grey is not None and P.colour_min_grey > 0 and ok_s.any() and _black_sky(grey, seen, b, P) is not None:
+    if grey is not None and P.colour_min_grey > 0 and ok_s.any() and black is _UNSET:
+        black = _black_sky(grey, seen, b, P)
+    if grey is not None and P.colour_min_grey > 0 and ok_s.any() and black is not None:
         sky_grey, _ = _window_mean(grey, sf, b, -R, -m)
         ok_s &= sky_grey >= P.colour_min_grey
     if ok_g.sum() < 10 or ok_s.sum() < 10:
