@@ -47,6 +47,7 @@ import numpy as np
 from board.detect.clipped_edge import clipped_run_above, edge_width_px
 from board.detect.graph_dp import shortest_path_l1
 from board.detect.preprocess import fill_unseen_rows, seen_or_all, to_grey01
+from board.detect.subpixel_phase import table_for_width, undo_phase
 from board.errors import InvalidInputError
 from board.transfer import check_transfer, to_linear
 
@@ -141,6 +142,10 @@ class DetectorParams:
                                         # samples (exact for a Gaussian-blurred edge) rather than through the samples
                                         # (which pulls it towards the sampled row by up to 0.05-0.07 px, "pixel
                                         # locking"; session 34), where the three are positive
+    subpixel_phase: bool = True         # ... and that peak read through the phase curve of a box pixel under the
+                                        # view's lens blur (measured edge width) and this detector's blur: the
+                                        # Gaussian's residual lock (up to 0.037 px without lens blur) undone on the
+                                        # linear intensity and colour steps (board.detect.subpixel_phase)
     reseat_on_step_above: bool = True   # columns masked for a sky-to-ground step above the line: the path solved
                                         # again kept at or above that step (a far ridge behind a near slope's
                                         # edge); a column takes the new line only where it passes every check
@@ -472,7 +477,8 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
         """Sub-pixel line, confidence and wide-window confidence of the path ``b``, and for colour images
         :func:`_sky_colour_unlike_ground`'s factor, sky-ground colour offset and ground colour."""
-        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
+        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb,
+                           phase=phase)
         black = _black_sky(grey, seen, b, P)      # once for both checks that act only under a black sky
         conf, context = _confidence(grey, proj, p, seen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap,
                                     black=black)
@@ -485,6 +491,9 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
 
     clipped = P.clipped_above(grey, b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
+    # the box pixel's phase curve under the lens that width implies (board.detect.subpixel_phase)
+    phase = (table_for_width(diag["edge_width_px"], P.blur_sigma_px)
+             if P.subpixel_gaussian and P.subpixel_phase else None)
     del lin_raw
     checks: dict = {}
     y, conf, context, colour = line_and_confidence(b, checks=checks)
@@ -632,7 +641,8 @@ def _sky_probability(llr: np.ndarray) -> np.ndarray:
 
 def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.ndarray, seen_pair: np.ndarray,
                    polarity: np.ndarray, sep_col: np.ndarray, contrast: np.ndarray, P: DetectorParams, *,
-                   lin_rgb: np.ndarray | None = None) -> np.ndarray:
+                   lin_rgb: np.ndarray | None = None,
+                   phase: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Sub-pixel line per column (rows) from the intensity step where intensity separates the classes and
     the grey level steps at the line by at least ``P.local_grey_step`` of the class ``contrast`` (colour
     edges shift with lens dispersion), from the discriminant's step ``diff`` elsewhere.  The step's sign is
@@ -648,7 +658,11 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     the linear colour projected on that difference instead (:func:`_colour_step`): a mixed pixel is linear
     in its sky share in every channel, so the projection's half-way point is the edge as the grey's is, and
     it carries the colour contrast where the grey has little (a sunlit crest as bright as the sky), which
-    the log-chroma discriminant has too but not linearly."""
+    the log-chroma discriminant has too but not linearly.
+
+    ``phase``: the view's phase curve (:func:`board.detect.subpixel_phase.table_for_width`), applied where the
+    step is linear light (the intensity and the colour step; the discriminant's is not linear in the pixel's
+    ground share)."""
     # the step's sign and size where the line is, not the classes' (a haze band can make the sky just above
     # the horizon brighter than the ground while the sky as a whole is darker)
     w = P.contrast_window_px
@@ -663,13 +677,13 @@ def _subpixel_line(blur: np.ndarray, lin: np.ndarray, diff: np.ndarray, b: np.nd
     istep *= polarity[None, :]
     on_grey = (sep_col >= P.intensity_subpixel_separation) & (np.abs(local) >= P.local_grey_step * contrast)
     g = P.subpixel_gaussian
-    y = np.where(on_grey, _subpixel(istep, b, g), _subpixel(diff, b, g))
+    y = np.where(on_grey, _subpixel(istep, b, g, phase), _subpixel(diff, b, g))
     if lin_rgb is None or not P.linear_colour_step:
         return y
     clip = float(to_linear(np.array([P.saturation_level], np.float32), P.transfer)[0]) - 1e-4
     cstep, length, whole = _colour_step(lin_rgb, sf, b, w, clip)
     use = (length >= P.colour_step_min) & (length >= P.colour_step_min_share * whole)
-    return np.where(use, _subpixel(cstep, b, g), y)
+    return np.where(use, _subpixel(cstep, b, g, phase), y)
 
 
 def _colour_step(lin_rgb: np.ndarray, sf: np.ndarray, b: np.ndarray, w: int, clip: float
@@ -903,13 +917,17 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
 
     def line_and_confidence(b: np.ndarray, on_step: np.ndarray | None = None,
                             checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb)
+        y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb,
+                           phase=phase)
         conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap)
         np.minimum(conf, conf_c, out=conf)
         return y, conf
 
     clipped = clipped_rows(b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
+    # the box pixel's phase curve under the lens that width implies (board.detect.subpixel_phase)
+    phase = (table_for_width(diag["edge_width_px"], P.blur_sigma_px)
+             if P.subpixel_gaussian and P.subpixel_phase else None)
     del lin_raw
     checks: dict = {}
     y, conf = line_and_confidence(b, checks=checks)
@@ -943,11 +961,13 @@ def _empty(W: int, diag: dict) -> Detection:
     return Detection(nan, nan.copy(), np.zeros(W), np.zeros(W, dtype=bool), diag)
 
 
-def _subpixel(step: np.ndarray, b: np.ndarray, gaussian: bool = False) -> np.ndarray:
+def _subpixel(step: np.ndarray, b: np.ndarray, gaussian: bool = False,
+              phase: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Line position: the strongest step within +-1 row of ``b``, refined by a parabola (rows) through the three
     samples around it or, ``gaussian``, through their logarithms where all three are positive (a Gaussian's peak
     exactly: a blurred edge's step is nearly one, and the samples' parabola pulls its peak towards the sampled row
-    by up to 0.05 px at a blur of 1 px, 0.07 px at 0.8 px)."""
+    by up to 0.05 px at a blur of 1 px, 0.07 px at 0.8 px); ``phase`` (with ``gaussian``): that Gaussian's
+    offset read through a box pixel's phase curve (:func:`board.detect.subpixel_phase.undo_phase`)."""
     H, W = step.shape
     cols = np.arange(W)
     offs = np.arange(-1, 2)
@@ -965,8 +985,11 @@ def _subpixel(step: np.ndarray, b: np.ndarray, gaussian: bool = False) -> np.nda
             pos = (g0 > 0) & (g1 > 0) & (g2 > 0)
             l0, l1, l2 = (np.log(np.where(pos, g, 1.0)) for g in (g0, g1, g2))
             den = l0 - 2.0 * l1 + l2
-            d = np.where(pos & (den < -1e-9), 0.5 * (l0 - l2) / den, d)
+            gauss = pos & (den < -1e-9)
+            d = np.where(gauss, 0.5 * (l0 - l2) / den, d)
     d = np.clip(d, -0.5, 0.5)
+    if gaussian and phase is not None:
+        d = np.where(gauss, undo_phase(d, phase), d)
     # step[r] sits between rows r-1 and r, i.e. at r - 0.5
     return bb - 0.5 + d
 

@@ -196,10 +196,12 @@ def test_binary_panorama_half_pixel():
 @pytest.mark.parametrize("psf_px", [0.0, 0.5, 0.8])
 def test_subpixel_line_without_pixel_locking(psf_px):
     # a straight edge climbing 3 rows round the circle (every sub-pixel phase, three times), each pixel the exact
-    # area of ground it covers, blurred by a Gaussian lens of psf_px, in linear 16-bit light with no noise: the
-    # line's error comes from the sub-pixel estimator alone.  A parabola through the step's three samples pulls
-    # the line towards the sampled row ("pixel locking", up to 0.07 px); through their logarithms (a Gaussian's
-    # peak, DetectorParams.subpixel_gaussian) it stays within 0.04 px, unbiased
+    # area of ground it covers, blurred by a Gaussian of psf_px after sampling (as the simulator's lens does), in
+    # linear 16-bit light with no noise: the line's error comes from the sub-pixel estimator alone.  A parabola
+    # through the step's three samples pulls the line towards the sampled row ("pixel locking", up to 0.07 px);
+    # through their logarithms (a Gaussian's peak, DetectorParams.subpixel_gaussian) it stays within 0.04 px,
+    # unbiased; read through the box pixel's phase curve (DetectorParams.subpixel_phase) the sharp edge's line is
+    # exact and a blurred one's never worse (the curve assumes a blur before sampling, which locks less)
     import cv2
 
     H, W = GEOM.height, GEOM.width
@@ -210,13 +212,57 @@ def test_subpixel_line_without_pixel_locking(psf_px):
         img = cv2.GaussianBlur(img, (1, 2 * int(math.ceil(3 * psf_px)) + 1), 0, sigmaY=psf_px)
     u16 = np.round((0.02 + 0.5 * img) * 65535).astype(np.uint16)
     errs = {}
-    for gaussian in (True, False):
-        det = detect_skyline(u16, wrap=True, params=DetectorParams(transfer="linear", subpixel_gaussian=gaussian))
+    for name, kw in (("phase", {}), ("gaussian", {"subpixel_phase": False}),
+                     ("parabola", {"subpixel_gaussian": False})):
+        det = detect_skyline(u16, wrap=True, params=DetectorParams(transfer="linear", **kw))
         assert det.valid.all()
-        errs[gaussian] = det.line_row - y
-    assert np.abs(errs[True]).max() <= 0.04 and abs(errs[True].mean()) <= 0.005
-    assert np.abs(errs[False]).max() >= 0.05                               # the test can fail: the parabola locks
-    assert errs[True].std() <= 0.6 * errs[False].std()
+        errs[name] = det.line_row - y
+    g, p, ph = errs["gaussian"], errs["parabola"], errs["phase"]
+    assert np.abs(g).max() <= 0.04 and abs(g.mean()) <= 0.005
+    assert np.abs(p).max() >= 0.05                               # the test can fail: the parabola locks
+    assert g.std() <= 0.6 * p.std()
+    assert abs(ph.mean()) <= 0.005 and ph.std() <= g.std() + 1e-3
+    if psf_px == 0.0:
+        assert np.abs(ph).max() <= 0.005 and np.abs(g).max() >= 0.03      # the Gaussian's lock, undone
+    if psf_px == 0.5:
+        assert ph.std() <= 0.7 * g.std()
+
+
+def test_the_phase_curve_of_a_box_pixel_against_a_brute_force_peak():
+    # board.detect.subpixel_phase's curve, checked against a brute-force edge: the edge's pixels integrated
+    # numerically (1000 sub-rows per pixel, the lens as a sampled continuous Gaussian), blurred by the detector's
+    # kernel, and the sub-pixel peak taken by the same three-sample Gaussian; its width measure reproduces
+    # edge_width_px's definition on the same edges
+    import cv2
+
+    from board.detect import subpixel_phase as sp
+
+    fine = 1000
+    rows = 41
+    for lens in (0.0, 0.3, 0.6):
+        table = sp.phase_table(lens, 1.0)
+        for phase in (-0.41, -0.17, 0.0, 0.23, 0.38):
+            yy = (np.arange(rows * fine) + 0.5) / fine - 0.5          # sub-row centres, row k covering [k-.5, k+.5]
+            edge = (yy >= 20.0 + phase).astype(np.float64)
+            if lens > 0:
+                kx = np.arange(-int(6 * lens * fine), int(6 * lens * fine) + 1) / fine
+                k = np.exp(-0.5 * (kx / lens) ** 2)
+                edge = np.convolve(edge, k / k.sum(), mode="same")
+                edge[-int(6 * lens * fine):] = 1.0                    # the convolution's zero padding, undone
+            pix = edge.reshape(rows, fine).mean(axis=1).astype(np.float32)[:, None].repeat(3, axis=1)
+            kern = cv2.getGaussianKernel(7, 1.0, cv2.CV_32F)
+            blur = cv2.sepFilter2D(pix, -1, np.ones((1, 1), np.float32), kern, borderType=cv2.BORDER_REFLECT)
+            step = np.diff(blur[:, 0].astype(np.float64))              # step[i] between rows i and i + 1
+            i = int(np.argmax(step))
+            l0, l1, l2 = np.log(step[i - 1:i + 2])
+            d = 0.5 * (l0 - l2) / (l0 - 2 * l1 + l2)
+            line = (i + 1) - 0.5 + float(sp.undo_phase(np.array([d]), table)[0])   # _subpixel's rows
+            assert abs(line - (20.0 + phase)) <= 2e-3, (lens, phase, line)
+    # the width curve: a sharp edge measures 1 / (sqrt(2 pi) 0.75), and the inverse recovers the lens
+    assert sp.model_width_px(0.0) == pytest.approx(1.0 / (0.75 * math.sqrt(2 * math.pi)), abs=2e-3)
+    for lens in (0.25, 0.5, 0.9):
+        assert sp.lens_sigma_from_width(sp.model_width_px(lens)) == pytest.approx(lens, abs=0.02)
+    assert sp.lens_sigma_from_width(float("nan")) is None and sp.table_for_width(1.5, 1.0) is None
 
 
 def test_noise_and_dust_masked_rather_than_wrong(params):
