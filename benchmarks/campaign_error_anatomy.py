@@ -18,7 +18,9 @@ extracted minus the true skyline, degrees, on the database's azimuths in the mas
 * **By distance** (``--by-distance``): the extraction error by the distance of the true horizon (ray-marched
   again from the campaign's terrain: where along each azimuth the horizon is), and the truth plus the error
   of the near horizon only (closer than ``--near-m``, default 8 km), of the far horizon only, and of the
-  case's median error only (a constant offset), each located alone.  A near horizon moves with the rover and
+  case's median error only (a constant offset), each located alone; and what a matcher could do about the far
+  horizon: the whole error with a free offset for the far horizon (or one for each), and the near horizon's
+  samples alone (:func:`distance_parts`).  A near horizon moves with the rover and
   fixes its position; a far one (tens of km) barely moves, and its error reaches the position through the
   heading and the tilt, more so on a partial arc.
 
@@ -99,7 +101,11 @@ def _locate_parts(run: Path, rows: list[dict], parts) -> list[dict]:
                "heading_image": float(r.get("heading_error_deg", 0.0)),
                "sigma_m": math.hypot(r.get("sigma_x_m", 0.0), r.get("sigma_y_m", 0.0))}
         for name, q in parts(r, truth, e):
-            fix = locate(db, Skyline(np.where(ok, q, np.nan), 0.0, step), mode="lost")
+            q = np.where(ok, q, np.nan)
+            if not np.isfinite(q).any():
+                res[name], res["heading_" + name] = math.inf, math.inf
+                continue
+            fix = locate(db, Skyline(q, 0.0, step), mode="lost")
             c = compare_with_truth(fix, t)
             res[name], res["heading_" + name] = c.error_m, abs(c.heading_error_deg)
         out.append(res)
@@ -189,17 +195,30 @@ def distance_table(rows: list[dict], dists: dict[str, np.ndarray],
     return out
 
 
-def split_by_distance(run: Path, rows: list[dict], dists: dict[str, np.ndarray], near_m: float) -> list[dict]:
-    """Per case: the position error (m) of the truth on the kept arc, plus the error of the near horizon only
-    (closer than ``near_m``), of the far one only, and of the case's median error only (a constant offset)."""
-    def parts(r, truth, e):
-        ok = np.isfinite(e)
-        e0 = np.where(ok, e, 0.0)
-        near = dists[r["case_id"]] < near_m
-        return (("truth", truth), ("near", truth + np.where(near, e0, 0.0)), ("far", truth + np.where(near, 0.0, e0)),
-                ("offset", truth + float(np.median(e[ok]))))
+def distance_parts(truth: np.ndarray, e: np.ndarray, near: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The queries :func:`split_by_distance` locates for one case (degrees; NaN for ``near_only`` beyond the
+    near horizon; :func:`_locate_parts` masks the samples the extraction masked in all of them): the truth;
+    plus the near horizon's error only (``near``), the far one's only (``far``), the case's median error (``offset``); the whole error with the far horizon's median
+    taken out (``far_offset``: what a free offset term for the far horizon could do at best), with both
+    horizons' medians taken out (``near_far_offsets``), and the near horizon's samples alone (``near_only``:
+    the most a weighting that trusts the far horizon less can give)."""
+    ok = np.isfinite(e)
+    e0 = np.where(ok, e, 0.0)
 
-    return _locate_parts(run, rows, parts)
+    def median(m: np.ndarray) -> float:
+        return float(np.median(e[m])) if m.any() else 0.0
+
+    fm, nm = median(ok & ~near), median(ok & near)
+    return [("truth", truth), ("near", truth + np.where(near, e0, 0.0)), ("far", truth + np.where(near, 0.0, e0)),
+            ("offset", truth + median(ok)), ("far_offset", truth + np.where(near, e0, e0 - fm)),
+            ("near_far_offsets", truth + np.where(near, e0 - nm, e0 - fm)),
+            ("near_only", np.where(near, truth + e0, np.nan))]
+
+
+def split_by_distance(run: Path, rows: list[dict], dists: dict[str, np.ndarray], near_m: float) -> list[dict]:
+    """Per case: the position error (m) of each of :func:`distance_parts`' queries (``near_m``: the near
+    horizon's limit), located lost in space (infinite where a query has no sample left)."""
+    return _locate_parts(run, rows, lambda r, truth, e: distance_parts(truth, e, dists[r["case_id"]] < near_m))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -241,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             parts = split_by_distance(a.run, rows, dists, a.near_m)
             print(f"| truth plus (near < {a.near_m / 1000:g} km) | median error (m) | within 2.5 m & 0.5 deg | within 5 m & 1 deg |")
             print("| --- | ---: | ---: | ---: |")
-            for k in ("truth", "offset", "near", "far", "image"):
+            for k in ("truth", "offset", "near", "far", "far_offset", "near_far_offsets", "near_only", "image"):
                 v = np.array([p[k] for p in parts])
                 h = np.array([p["heading_" + k] for p in parts])
                 print(f"| {k} | {np.median(v):.2f} | {np.sum((v <= 2.5) & (h <= 0.5))} of {v.size} | "

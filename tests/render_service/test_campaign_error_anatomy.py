@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.campaign_error_anatomy import distance_table, mast_frame_values
+from benchmarks.campaign_error_anatomy import distance_parts, distance_table, mast_frame_values
 from board.match.synthetic import observe
 
 FINE = 3600
@@ -65,3 +65,27 @@ def test_distance_table_bands():
         assert b["mad_deg"] == pytest.approx(np.median(np.abs(e - np.median(e))))
         assert b["over_0_1"] == pytest.approx(np.mean(np.abs(e) > 0.1))
     assert table[1]["mad_deg"] > 3 * table[0]["mad_deg"]
+
+
+def test_distance_parts_take_out_exactly_what_they_name():
+    """Each query of split_by_distance: the far / near medians taken out where they say, the near-only query
+    NaN beyond the near horizon (a masked sample's error counts in no median)."""
+    rng = np.random.default_rng(5)
+    n = 360
+    truth = 2.0 + np.sin(np.radians(np.arange(n)) * 3)
+    near = np.arange(n) % 3 == 0
+    e = np.where(near, 0.004, 0.03) + rng.normal(0, 0.01, n)
+    e[::11] = np.nan
+    ok = np.isfinite(e)
+    q = dict(distance_parts(truth, e, near))
+    assert set(q) == {"truth", "near", "far", "offset", "far_offset", "near_far_offsets", "near_only"}
+    err = {k: v - truth for k, v in q.items()}
+    assert np.array_equal(q["truth"], truth)
+    assert np.allclose(err["near"][near & ok], e[near & ok]) and np.all(err["near"][~near] == 0)
+    assert np.allclose(err["far"][~near & ok], e[~near & ok]) and np.all(err["far"][near] == 0)
+    assert np.allclose(err["offset"], np.median(e[ok]))
+    assert abs(np.median(err["far_offset"][~near & ok])) < 1e-12
+    assert np.allclose(err["far_offset"][near & ok], e[near & ok])
+    for m in (near, ~near):
+        assert abs(np.median(err["near_far_offsets"][m & ok])) < 1e-12
+    assert np.all(np.isnan(q["near_only"][~near])) and np.allclose(err["near_only"][near & ok], e[near & ok])
