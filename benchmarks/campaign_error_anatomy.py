@@ -198,8 +198,8 @@ def distance_table(rows: list[dict], dists: dict[str, np.ndarray],
 def distance_parts(truth: np.ndarray, e: np.ndarray, near: np.ndarray) -> list[tuple[str, np.ndarray]]:
     """The queries :func:`split_by_distance` locates for one case (degrees; NaN for ``near_only`` beyond the
     near horizon; :func:`_locate_parts` masks the samples the extraction masked in all of them): the truth;
-    plus the near horizon's error only (``near``), the far one's only (``far``), the case's median error (``offset``); the whole error with the far horizon's median
-    taken out (``far_offset``: what a free offset term for the far horizon could do at best), with both
+    plus the near horizon's error only (``near``), the far one's only (``far``), the case's median error
+    (``offset``); the whole error with the far horizon's median taken out (``far_offset``: what a free offset term for the far horizon could do at best), with both
     horizons' medians taken out (``near_far_offsets``), and the near horizon's samples alone (``near_only``:
     the most a weighting that trusts the far horizon less can give)."""
     ok = np.isfinite(e)

@@ -491,9 +491,7 @@ def _detect_direct(image: np.ndarray, seen: np.ndarray | None, wrap: bool, param
 
     clipped = P.clipped_above(grey, b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
-    # the box pixel's phase curve under the lens that width implies (board.detect.subpixel_phase)
-    phase = (table_for_width(diag["edge_width_px"], P.blur_sigma_px)
-             if P.subpixel_gaussian and P.subpixel_phase else None)
+    phase = _phase_curve(diag["edge_width_px"], P)
     del lin_raw
     checks: dict = {}
     y, conf, context, colour = line_and_confidence(b, checks=checks)
@@ -919,15 +917,14 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
                             checks: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
         y = _subpixel_line(blur, lin, diff, b, seen_pair, polarity, sep_col, contrast, P, lin_rgb=lin_rgb,
                            phase=phase)
-        conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap)
+        conf, _ = _confidence(grey, proj, p, bseen, b, sd_proj_sky, P, colour_proj, on_step, checks, wrap,
+                              black=_black_sky(grey, bseen, b, P))
         np.minimum(conf, conf_c, out=conf)
         return y, conf
 
     clipped = clipped_rows(b)
     diag["edge_width_px"] = edge_width_px(lin_raw, b, clipped)
-    # the box pixel's phase curve under the lens that width implies (board.detect.subpixel_phase)
-    phase = (table_for_width(diag["edge_width_px"], P.blur_sigma_px)
-             if P.subpixel_gaussian and P.subpixel_phase else None)
+    phase = _phase_curve(diag["edge_width_px"], P)
     del lin_raw
     checks: dict = {}
     y, conf = line_and_confidence(b, checks=checks)
@@ -959,6 +956,14 @@ def _detect_coarse_to_fine(img: np.ndarray, seen: np.ndarray | None, wrap: bool,
 def _empty(W: int, diag: dict) -> Detection:
     nan = np.full(W, np.nan)
     return Detection(nan, nan.copy(), np.zeros(W), np.zeros(W, dtype=bool), diag)
+
+
+def _phase_curve(edge_width_px: float, P: DetectorParams) -> tuple[np.ndarray, np.ndarray] | None:
+    """The box pixel's phase curve for the lens a view's measured edge width implies
+    (:func:`board.detect.subpixel_phase.table_for_width`), None when ``P`` does not read the peak through it."""
+    if not (P.subpixel_gaussian and P.subpixel_phase):
+        return None
+    return table_for_width(edge_width_px, P.blur_sigma_px)
 
 
 def _subpixel(step: np.ndarray, b: np.ndarray, gaussian: bool = False,
@@ -1047,10 +1052,6 @@ def _step_above(proj: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorPa
     return 1.0 - np.clip((s_above - lo) / (hi - lo), 0, 1), row
 
 
-#: "not passed" for the checks' optional ``black`` (None is an answer: the view's sky is not black)
-_UNSET = object()
-
-
 def _black_sky(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams) -> tuple[float, float] | None:
     """The sky's level and noise (grey, 0-1: :func:`_fit`'s median and 1.4826 MAD, floored at half a level of
     8 bits) when the view's sky is black (airless: no gradient, haze or glow of its own), else None.
@@ -1109,7 +1110,7 @@ def _faint_ground_above(grey: np.ndarray, seen: np.ndarray, b: np.ndarray, P: De
 def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndarray, b: np.ndarray,
                 sigma_sky: np.ndarray, P: DetectorParams, colour_proj: np.ndarray | None = None,
                 on_step: np.ndarray | None = None, checks: dict | None = None, wrap: bool = False,
-                black: tuple[float, float] | None | object = _UNSET) -> tuple[np.ndarray, np.ndarray]:
+                black: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-column confidence in [0, 1] (min of the individual checks, see the module docstring) and the
     same without the step-contrast and seen-rows checks: the checks whose windows look beyond the step
     (region consistency, saturation and glare, a step above the line).
@@ -1122,7 +1123,7 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     sky); checks : a dict that receives
     the individual checks' factors (``"region"``, ``"above"``) and the step-above check's factor and step
     row per column on the discriminant and the colour (``"above_steps"``, :func:`_step_above`); black : the
-    view's :func:`_black_sky` for this line when the caller has it already (evaluated here when not passed)."""
+    view's :func:`_black_sky` for this line (None: the sky is not black)."""
     w = P.contrast_window_px
     sf = seen.astype(np.float32)
     above, n_above = _window_mean(proj, sf, b, -w, 0)
@@ -1163,8 +1164,6 @@ def _confidence(grey: np.ndarray, proj: np.ndarray, p: np.ndarray, seen: np.ndar
     c_sat = np.minimum(c_sat, 1.0 - glare * np.clip((f_sky_sat - 0.3) / 0.3, 0, 1))
     c_seen = ((n_above >= P.min_seen_rows) & (n_below >= P.min_seen_rows)).astype(np.float64)
     # a sky-to-ground step above the line: a hazy distant ridge the line passed under
-    if black is _UNSET:
-        black = _black_sky(grey, seen, b, P)
     steps = [_step_above(proj, seen, b, P, wrap, black is not None)]
     if colour_proj is not None:
         # ... in colour alone too: sunlit ground brighter than the sky (and a shaded slope below it) can
@@ -1336,7 +1335,7 @@ def _step_above_limits(steps: list[tuple[np.ndarray, np.ndarray]], masked: np.nd
 
 
 def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarray, P: DetectorParams,
-                              grey: np.ndarray | None = None, black: tuple[float, float] | None | object = _UNSET
+                              grey: np.ndarray | None = None, black: tuple[float, float] | None = None
                               ) -> tuple[np.ndarray, float, float]:
     """Per column, 1 where the window above the line has the sky's colour, 0 where it has the ground's.
 
@@ -1353,7 +1352,7 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     colour to measure (the log ratio of sensor noise) and is left alone (1), nor does it set the view's sky
     colour; under a bright sky every window is checked as before.  Returns the per-column factor, that sky-ground
     colour offset and the ground's colour (log blue / red).  ``black``: the view's :func:`_black_sky` for this
-    line when the caller has it already (evaluated from ``grey`` when not passed).
+    line (None: the sky is not black).
     """
     W = b.size
     R, m = P.region_window_px, P.contrast_window_px
@@ -1364,8 +1363,6 @@ def _sky_colour_unlike_ground(chroma: np.ndarray, seen: np.ndarray, b: np.ndarra
     ok_s = n_s >= P.min_seen_rows
     # only in a view whose sky is black (:func:`_black_sky`): under a bright sky a dark "sky" window is a shaded
     # slope, and its colour (even the ratio of noise) is all the check has to go on there, as before
-    if grey is not None and P.colour_min_grey > 0 and ok_s.any() and black is _UNSET:
-        black = _black_sky(grey, seen, b, P)
     if grey is not None and P.colour_min_grey > 0 and ok_s.any() and black is not None:
         sky_grey, _ = _window_mean(grey, sf, b, -R, -m)
         ok_s &= sky_grey >= P.colour_min_grey

@@ -93,21 +93,11 @@ def lens_sigma_from_width(width_px: float) -> float | None:
     return float(s[lo] + (s[i] - s[lo]) * (width_px - w[lo]) / (w[i] - w[lo]))
 
 
-def _gaussian_peak(step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per column of ``step`` (rows x n): the strongest sample's row and the offset of a Gaussian through it and
-    its two neighbours (the estimator of :func:`board.detect.sky_regions._subpixel`, here on model steps)."""
-    n = step.shape[1]
-    cols = np.arange(n)
-    bb = np.argmax(step, axis=0)
-    g0, g1, g2 = step[bb - 1, cols], step[bb, cols], step[bb + 1, cols]
-    l0, l1, l2 = np.log(g0), np.log(g1), np.log(g2)
-    d = np.clip(0.5 * (l0 - l2) / (l0 - 2.0 * l1 + l2), -0.5, 0.5)
-    return bb, d
-
-
 @lru_cache(maxsize=16)
 def _phase_table_cached(lens_sigma: float, blur_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     import cv2
+
+    from board.detect.sky_regions import _subpixel  # the detector's own estimator (it imports this module)
 
     phases = np.linspace(-0.75, 0.75, int(1.5 * (_N_PHASES - 1)) + 1)
     img = model_edge(phases, lens_sigma).astype(np.float32)
@@ -116,7 +106,8 @@ def _phase_table_cached(lens_sigma: float, blur_sigma: float) -> tuple[np.ndarra
         img = cv2.sepFilter2D(img, -1, np.ones((1, 1), np.float32), k, borderType=cv2.BORDER_REFLECT)
     step = np.zeros(img.shape, dtype=np.float64)
     step[1:] = img[1:] - img[:-1]                     # step[r] sits between rows r - 1 and r
-    bb, d_est = _gaussian_peak(step)
+    bb = np.argmax(step, axis=0)                      # the strongest sample: _subpixel keeps it, offset d
+    d_est = _subpixel(step, bb, gaussian=True) - (bb - 0.5)
     # the true line in _subpixel's rows (``bb - 0.5 + d``) is the edge's own row (row k covering [k-0.5, k+0.5])
     d_true = (_ROW0 + phases) - (bb - 0.5)
     keep = np.abs(d_est) < 0.5
